@@ -1,0 +1,182 @@
+"""Reading and writing instances: JSON (small) and NPZ (large), schema ``l3gs-opt/instance@1``.
+
+The parser walks nested lists itself so that a fault names its exact index
+(``utility[3][2]: expected 4 entries (layers), got 3``) instead of surfacing a numpy error.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import InstanceError
+from .instance import SCHEMA, Instance, Options
+
+__all__ = ["instance_from_dict", "load_instance", "save_instance"]
+
+_KEYS = ("schema", "representation", "bandwidth", "slot_s", "cost", "utility", "held", "options", "names",
+         "meta")
+_REQUIRED = ("schema", "representation", "bandwidth", "cost", "utility")
+_DIMS = {"bandwidth": ("slots",), "cost": ("objects", "layers"), "utility": ("slots", "objects", "layers"),
+         "held": ("objects", "layers")}
+
+
+def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
+    """Nested JSON lists -> array, checking every entry's type and every list's length."""
+    dims = _DIMS[name]
+    shape: list[int | None] = [None] * len(dims)
+    flat: list[float | int] = []
+
+    def walk(v: Any, depth: int, idx: tuple[int, ...]) -> None:
+        if depth == len(dims):
+            if type(v) is bool or not isinstance(v, (int, float)):
+                raise InstanceError(name, f"= {v!r}: must be a number", idx)
+            if isinstance(v, int) and abs(v) > 2**63 - 1:
+                raise InstanceError(name, f"= {v}: out of range", idx)
+            if isinstance(v, float) and integer and v.is_integer() and abs(v) > 2**63 - 1:
+                raise InstanceError(name, f"= {v}: out of range", idx)
+            flat.append(v)
+            return
+        if not isinstance(v, list):
+            raise InstanceError(name, f"must be a list over {dims[depth]}, got {type(v).__name__}", idx)
+        if shape[depth] is None:
+            shape[depth] = len(v)
+        elif len(v) != shape[depth]:
+            raise InstanceError(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)}", idx)
+        for i, item in enumerate(v):
+            walk(item, depth + 1, idx + (i,))
+
+    walk(value, 0, ())
+    full = tuple(0 if s is None else s for s in shape)
+    if integer and any(isinstance(v, float) for v in flat):
+        arr = np.array(flat, dtype=np.float64)
+    elif integer:
+        arr = np.array(flat, dtype=np.int64)
+    else:
+        try:
+            arr = np.array(flat, dtype=np.float64)
+        except OverflowError:
+            for i, v in enumerate(flat):
+                try:
+                    float(v)
+                except OverflowError:
+                    raise InstanceError(name, f"= {v}: must be finite",
+                                        tuple(int(k) for k in np.unravel_index(i, full))) from None
+            raise
+    return arr.reshape(full)
+
+
+def instance_from_dict(data: Any) -> Instance:
+    """Validate a decoded ``l3gs-opt/instance@1`` JSON object and build the instance.
+
+    Raises
+    ------
+    InstanceError
+        Unknown or missing keys, a wrong schema, wrong shapes, NaN/inf, negative numbers,
+        fractional bytes, a held set that is not a prefix (layered).
+    """
+    if not isinstance(data, Mapping):
+        raise InstanceError("instance", "must be a JSON object")
+    for key in data:
+        if key not in _KEYS:
+            raise InstanceError(str(key), f"unknown key (known: {', '.join(_KEYS)})")
+    for key in _REQUIRED:
+        if key not in data:
+            raise InstanceError(key, "missing")
+    if data["schema"] != SCHEMA:
+        raise InstanceError("schema", f"{data['schema']!r}: expected {SCHEMA!r}")
+    if not isinstance(data["representation"], str):
+        raise InstanceError("representation", "must be a string")
+    held = data.get("held")
+    if held is not None:
+        held = _nested(held, "held", integer=True)
+    slot_s = data.get("slot_s", 1.0)
+    return Instance(
+        representation=data["representation"],
+        bandwidth=_nested(data["bandwidth"], "bandwidth", integer=True),
+        cost=_nested(data["cost"], "cost", integer=True),
+        utility=_nested(data["utility"], "utility", integer=False),
+        held=held,
+        slot_s=slot_s,
+        options=Options.from_dict(data.get("options")),
+        names=data.get("names"),
+        meta=data.get("meta") or {},
+    )
+
+
+def _npz_to_dict(npz: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """NPZ entries carry the JSON names; scalars and objects are stored as JSON text."""
+    out: dict[str, Any] = {}
+    for key in npz:
+        if key not in _KEYS:
+            raise InstanceError(key, f"unknown key (known: {', '.join(_KEYS)})")
+        arr = npz[key]
+        if key in _DIMS:
+            out[key] = arr
+        else:
+            if arr.ndim != 0 or arr.dtype.kind != "U":
+                raise InstanceError(key, "must be stored as JSON text in a 0-d string array")
+            try:
+                out[key] = json.loads(str(arr))
+            except json.JSONDecodeError as exc:
+                raise InstanceError(key, f"not valid JSON: {exc}") from None
+    return out
+
+
+def load_instance(path: str | os.PathLike[str]) -> Instance:
+    """Load an instance from ``.json`` or ``.npz``; every fault is an :class:`InstanceError`."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".npz":
+            try:
+                with np.load(path, allow_pickle=False) as npz:
+                    data = _npz_to_dict({k: npz[k] for k in npz.files})
+            except (zipfile.BadZipFile, ValueError, EOFError, OSError) as exc:
+                if isinstance(exc, InstanceError):
+                    raise
+                raise InstanceError("file", f"{path}: not a readable NPZ instance ({exc})") from None
+            for key in ("bandwidth", "cost", "utility", "held"):
+                if key in data and data[key].dtype.kind not in "biuf":
+                    raise InstanceError(key, f"must be numeric, got dtype {data[key].dtype}")
+            for key in _REQUIRED:
+                if key not in data:
+                    raise InstanceError(key, "missing")
+            if data["schema"] != SCHEMA:
+                raise InstanceError("schema", f"{data['schema']!r}: expected {SCHEMA!r}")
+            return Instance(representation=data["representation"], bandwidth=data["bandwidth"],
+                            cost=data["cost"], utility=data["utility"], held=data.get("held"),
+                            slot_s=data.get("slot_s", 1.0), options=Options.from_dict(data.get("options")),
+                            names=data.get("names"), meta=data.get("meta") or {})
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InstanceError("file", f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InstanceError("file", f"{path}: cannot be read ({exc})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InstanceError("file", f"{path}: not valid JSON ({exc})") from None
+    return instance_from_dict(data)
+
+
+def save_instance(instance: Instance, path: str | os.PathLike[str]) -> Path:
+    """Write ``.json`` (small instances) or ``.npz`` (large), chosen by the suffix."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = instance.to_dict()
+    if path.suffix.lower() == ".npz":
+        arrays: dict[str, np.ndarray] = {}
+        for key, value in data.items():
+            if key in _DIMS:
+                arrays[key] = np.asarray(getattr(instance, key))
+            else:
+                arrays[key] = np.array(json.dumps(value))
+        np.savez_compressed(path, **arrays)
+    else:
+        path.write_text(json.dumps(data, allow_nan=False) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,105 @@
+"""Pieces every multi-slot formulation shares: arrival variables, byte budgets, holding chains."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from l3gs_opt.instance import Instance
+from l3gs_opt.presolve import Reduction
+
+from .linear import ModelBuilder, index_name
+
+Key = tuple[int, int, int]
+
+
+def shift(instance: Instance) -> int:
+    """Slots between arrival and first showing: 0 (same_slot) or 1 (next_slot)."""
+    return 1 if instance.options.availability == "next_slot" else 0
+
+
+def add_arrivals(b: ModelBuilder, inst: Instance, red: Reduction,
+                 obj: np.ndarray | None = None) -> dict[Key, int]:
+    """Binary ``x[j,l,t]`` = chunk (j, l) arrives in slot t, where the reduction allows it.
+
+    ``obj`` ([J, L, T]) gives objective coefficients (GAP form); held chunks of a naive model
+    get ``ub = 0``.
+    """
+    one = inst.J == 1
+    x: dict[Key, int] = {}
+    for j, l, t in zip(*np.nonzero(red.arrive & red.active[:, :, None])):
+        j, l, t = int(j), int(l), int(t)
+        x[(j, l, t)] = b.var(index_name("x", j, l, t, one_object=one),
+                             obj=0.0 if obj is None else float(obj[j, l, t]),
+                             ub=0.0 if inst.held[j, l] else 1.0)
+        b.decode.append((x[(j, l, t)], ((j, l, t),)))
+    return x
+
+
+def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redundant: bool) -> None:
+    """Byte budgets. Per slot: ``sum c x[., ., t] <= B[t]``. Cumulative: an unspent-bytes carry
+    ``r[t] = r[t-1] + B[t] - sum c x[., ., t] >= 0`` (O(items) non-zeros instead of O(items T)).
+    """
+    by_slot: dict[int, list[Key]] = {}
+    for key in x:
+        by_slot.setdefault(key[2], []).append(key)
+    bandwidth = [int(v) for v in inst.bandwidth]
+    if inst.options.budget == "per_slot":
+        for t in range(inst.T):
+            keys = by_slot.get(t, [])
+            costs = [float(inst.cost[j, l]) for j, l, _ in keys]
+            if drop_redundant and sum(costs) <= bandwidth[t]:
+                continue
+            b.row(f"budget[{t}]", [x[k] for k in keys], costs, ub=float(bandwidth[t]))
+        return
+    slots = sorted(by_slot) if drop_redundant else list(range(inst.T))
+    if drop_redundant and slots and sum(float(inst.cost[j, l]) for j, l, _ in x) <= sum(bandwidth[:slots[-1] + 1]):
+        return
+    prev_r, prev_t = None, -1
+    for t in slots:
+        keys = by_slot.get(t, [])
+        # Bytes that become available between the previous carry and this slot.
+        extra = float(sum(bandwidth[prev_t + 1:t + 1]))
+        r = b.var(f"r[{t}]", lb=0.0, ub=np.inf, integer=False, integral_ok=True)
+        cols = [r] + [x[k] for k in keys] + ([prev_r] if prev_r is not None else [])
+        vals = [1.0] + [float(inst.cost[j, l]) for j, l, _ in keys] + ([-1.0] if prev_r is not None else [])
+        b.row(f"carry[{t}]", cols, vals, lb=extra, ub=extra)
+        prev_r, prev_t = r, t
+
+
+def add_holding(b: ModelBuilder, inst: Instance, red: Reduction, x: dict[Key, int],
+                obj: np.ndarray | None = None) -> dict[Key, int]:
+    """Binary ``y[j,l,t]`` = chunk (j, l) has arrived by the end of slot t, for t from its first
+    possible arrival: ``y[t] - y[t-1] - x[t] = held`` (held only on the first row of a naive
+    model). ``obj`` ([J, L, T]) are the objective coefficients of y.
+    """
+    one = inst.J == 1
+    y: dict[Key, int] = {}
+    for j, l in zip(*np.nonzero(red.active)):
+        j, l = int(j), int(l)
+        held = bool(inst.held[j, l])
+        start = int(red.first[j, l])
+        for t in range(start, inst.T):
+            y[(j, l, t)] = v = b.var(index_name("y", j, l, t, one_object=one),
+                                     obj=0.0 if obj is None else float(obj[j, l, t]),
+                                     lb=1.0 if held else 0.0)
+            cols, vals = [v], [1.0]
+            if t > start:
+                cols.append(y[(j, l, t - 1)])
+                vals.append(-1.0)
+            if (j, l, t) in x:
+                cols.append(x[(j, l, t)])
+                vals.append(-1.0)
+            rhs = 1.0 if held and t == start else 0.0
+            b.row(f"hold{index_name('', j, l, t, one_object=one)}", cols, vals, lb=rhs, ub=rhs)
+    return y
+
+
+def shown_objective(inst: Instance, red: Reduction) -> np.ndarray:
+    """``[J, L, T]`` coefficient of "arrived by slot t": the gain shown at slot t + shift."""
+    gain = np.moveaxis(red.gain, 0, -1)  # [J, L, T]
+    s = shift(inst)
+    if s == 0:
+        return gain.copy()
+    out = np.zeros_like(gain)
+    out[:, :, :-s] = gain[:, :, s:]
+    return out

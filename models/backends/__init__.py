@@ -1,0 +1,96 @@
+"""Backends: one module each, imported only when chosen; one result type and status table.
+
+Common parameters first (time limit, LP relaxation), backend-specific ones in ``options``
+(an unknown option warns rather than fails). Every backend runs with zero MIP gap tolerance so
+that "optimal" means proven optimal up to round-off.
+"""
+
+from __future__ import annotations
+
+import enum
+import importlib
+import importlib.util
+import time
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from l3gs_opt.errors import BackendUnavailableError, SolveError
+from l3gs_opt.solution import Status
+
+from ..linear import LinearModel
+
+__all__ = ["Backend", "BackendResult", "is_installed", "installed_backends", "solve_model"]
+
+
+class Backend(str, enum.Enum):
+    """The ILP backends. Values are the CLI names."""
+
+    CBC = "cbc"            #: COIN-OR CBC through PuLP
+    HIGHS = "highs"        #: HiGHS through highspy
+    CPSAT = "cpsat"        #: OR-Tools CP-SAT (integer objective: scaled, error bound reported)
+    SCIP = "scip"          #: SCIP through OR-Tools' linear solver wrapper
+
+    def __str__(self) -> str:
+        return self.value
+
+    @classmethod
+    def parse(cls, name: "str | Backend") -> "Backend":
+        try:
+            return cls(name)
+        except ValueError:
+            raise SolveError(f"backend {name!r} is not one of {', '.join(b.value for b in cls)}") from None
+
+
+_MODULE = {Backend.CBC: "cbc", Backend.HIGHS: "highs", Backend.CPSAT: "cpsat", Backend.SCIP: "scip"}
+_PACKAGE = {Backend.CBC: "pulp", Backend.HIGHS: "highspy", Backend.CPSAT: "ortools", Backend.SCIP: "ortools"}
+
+
+@dataclass(frozen=True)
+class BackendResult:
+    """What a backend returns, in model units (``constant`` excluded from ``bound``).
+
+    ``values`` is None when the backend has no solution; ``bound`` is an upper bound on
+    ``objective @ x`` (None when unknown).
+    """
+
+    status: Status
+    values: np.ndarray | None
+    bound: float | None
+    version: str
+    message: str = ""
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+
+def is_installed(backend: "str | Backend") -> bool:
+    """Whether the backend's library can be imported (answered without importing it)."""
+    return importlib.util.find_spec(_PACKAGE[Backend.parse(backend)]) is not None
+
+
+def installed_backends() -> list[Backend]:
+    return [b for b in Backend if is_installed(b)]
+
+
+def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: float | None = None,
+                relax: bool = False, options: Mapping[str, Any] | None = None) -> BackendResult:
+    """Solve ``model`` with ``backend``; ``relax`` drops integrality (an LP bound)."""
+    backend = Backend.parse(backend)
+    if time_limit_s is not None and not time_limit_s > 0:
+        raise SolveError(f"time_limit_s = {time_limit_s!r}: must be > 0 seconds")
+    if not is_installed(backend):
+        raise BackendUnavailableError(f"backend {backend.value!r} needs the package {_PACKAGE[backend]!r}")
+    module = importlib.import_module(f"{__name__}.{_MODULE[backend]}")
+    if model.size.variables == 0:
+        return BackendResult(status=Status.OPTIMAL, values=np.zeros(0), bound=0.0, version=module.version(),
+                             message="empty model after presolve: nothing to solve")
+    return module.solve(model, time_limit_s=time_limit_s, relax=relax, options=dict(options or {}))
+
+
+def finite_or(value: float, default: float) -> float:
+    return float(value) if np.isfinite(value) else default
+
+
+def timed_out(start: float, time_limit_s: float | None) -> bool:
+    """Whether a run that stopped without proof used up its time limit (with 5% slack)."""
+    return time_limit_s is not None and time.perf_counter() - start >= 0.95 * time_limit_s

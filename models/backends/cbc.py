@@ -1,0 +1,93 @@
+"""CBC adapter through PuLP.
+
+PuLP reports ``Optimal`` for some CBC runs stopped by a time limit (coin-or/pulp issues 649 and
+711; seen here with PuLP 3.3 and CBC 2.10.3). So the status and the bound are read from CBC's own
+log (``Result - ...``, ``Upper bound:``), never from PuLP's status.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+import warnings
+from importlib.metadata import version as _pkg_version
+from typing import Any
+
+import numpy as np
+import pulp
+
+from l3gs_opt.solution import Status
+
+from ..linear import LinearModel
+from . import BackendResult
+
+_KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
+_RESULT = re.compile(r"^Result - (.*)$", re.M)
+_UPPER = re.compile(r"^Upper bound:\s+(\S+)", re.M)
+_VERSION = re.compile(r"^Version:\s+(\S+)", re.M)
+
+
+def version(log: str = "") -> str:
+    found = _VERSION.search(log)
+    return f"pulp {_pkg_version('pulp')}" + (f" (CBC {found.group(1)})" if found else " (CBC)")
+
+
+def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, options: dict[str, Any]) -> BackendResult:
+    problem = pulp.LpProblem("l3gs", pulp.LpMaximize)
+    xs = []
+    for i in range(model.size.variables):
+        lb = model.lb[i] if np.isfinite(model.lb[i]) else None
+        ub = model.ub[i] if np.isfinite(model.ub[i]) else None
+        cat = pulp.LpInteger if (model.integer[i] and not relax) else pulp.LpContinuous
+        xs.append(pulp.LpVariable(f"v{i}", lowBound=lb, upBound=ub, cat=cat))
+    nz = np.nonzero(model.objective)[0]
+    problem += pulp.LpAffineExpression([(xs[i], float(model.objective[i])) for i in nz])
+    csr = model.matrix
+    for r in range(model.size.constraints):
+        expr = [(xs[csr.indices[k]], float(csr.data[k])) for k in range(csr.indptr[r], csr.indptr[r + 1])]
+        lo, hi = model.row_lb[r], model.row_ub[r]
+        if lo == hi:
+            problem += pulp.LpConstraint(pulp.LpAffineExpression(expr), pulp.LpConstraintEQ, f"r{r}", float(hi))
+            continue
+        if np.isfinite(hi):
+            problem += pulp.LpConstraint(pulp.LpAffineExpression(expr), pulp.LpConstraintLE, f"r{r}u", float(hi))
+        if np.isfinite(lo):
+            problem += pulp.LpConstraint(pulp.LpAffineExpression(expr), pulp.LpConstraintGE, f"r{r}l", float(lo))
+    kwargs = {k: v for k, v in options.items() if k in _KNOWN}
+    for key in options:
+        if key not in _KNOWN:
+            warnings.warn(f"cbc: unknown option {key!r} ignored", stacklevel=3)
+    fd, log_path = tempfile.mkstemp(suffix=".log", prefix="l3gs-cbc-")
+    os.close(fd)
+    try:
+        cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_limit_s, gapRel=0.0, gapAbs=0.0,
+                                logPath=log_path, **kwargs)
+        problem.solve(cmd)
+        with open(log_path, encoding="utf-8", errors="replace") as fh:
+            log = fh.read()
+    finally:
+        os.unlink(log_path)
+    raw = [v.varValue for v in xs]
+    has_solution = bool(xs) and all(v is not None for v in raw)
+    values = np.array(raw, dtype=np.float64) if has_solution else None
+    found = _RESULT.search(log)
+    result = found.group(1).strip() if found else ""
+    objective = float(values @ model.objective) if values is not None else None
+    bound = None
+    if result.startswith("Optimal"):
+        status, bound = Status.OPTIMAL, objective
+    elif result.startswith("Stopped on time"):
+        status = Status.TIME_LIMIT
+        upper = _UPPER.search(log)
+        if upper:
+            bound = float(upper.group(1))
+    elif "infeasible" in result.lower():
+        status = Status.INFEASIBLE
+    elif relax and pulp.LpStatus[problem.status] == "Optimal":
+        # CBC's LP path prints no "Result -" line.
+        status, bound = Status.OPTIMAL, objective
+    else:
+        status = Status.ERROR
+    return BackendResult(status=status, values=values, bound=bound, version=version(log),
+                         message=f"CBC: {result or 'no result line'} (PuLP said {pulp.LpStatus[problem.status]})")

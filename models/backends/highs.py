@@ -1,0 +1,71 @@
+"""HiGHS adapter (highspy): builds a column-wise ``HighsLp`` and maps HiGHS's model status."""
+
+from __future__ import annotations
+
+import warnings
+from importlib.metadata import version as _pkg_version
+from typing import Any
+
+import highspy
+import numpy as np
+
+from l3gs_opt.solution import Status
+
+from ..linear import LinearModel
+from . import BackendResult
+
+_KNOWN = {"threads", "presolve", "random_seed", "mip_feasibility_tolerance", "primal_feasibility_tolerance"}
+
+
+def version() -> str:
+    return f"highspy {_pkg_version('highspy')}"
+
+
+def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, options: dict[str, Any]) -> BackendResult:
+    ms = highspy.HighsModelStatus
+    status_map = {ms.kOptimal: Status.OPTIMAL, ms.kTimeLimit: Status.TIME_LIMIT, ms.kInfeasible: Status.INFEASIBLE,
+                  ms.kIterationLimit: Status.TIME_LIMIT, ms.kSolutionLimit: Status.FEASIBLE,
+                  ms.kInterrupt: Status.TIME_LIMIT}
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    inf = highspy.kHighsInf
+    lp = highspy.HighsLp()
+    n, m = model.size.variables, model.size.constraints
+    lp.num_col_, lp.num_row_ = n, m
+    lp.sense_ = highspy.ObjSense.kMaximize
+    lp.offset_ = 0.0
+    lp.col_cost_ = model.objective
+    lp.col_lower_ = np.where(np.isfinite(model.lb), model.lb, -inf)
+    lp.col_upper_ = np.where(np.isfinite(model.ub), model.ub, inf)
+    lp.row_lower_ = np.where(np.isfinite(model.row_lb), model.row_lb, -inf)
+    lp.row_upper_ = np.where(np.isfinite(model.row_ub), model.row_ub, inf)
+    csc = model.matrix.tocsc()
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = csc.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = csc.indices.astype(np.int32)
+    lp.a_matrix_.value_ = csc.data
+    if not relax and model.integer.any():
+        kinds = [highspy.HighsVarType.kInteger if i else highspy.HighsVarType.kContinuous for i in model.integer]
+        lp.integrality_ = kinds
+    h.passModel(lp)
+    h.setOptionValue("mip_rel_gap", 0.0)
+    h.setOptionValue("mip_abs_gap", 0.0)
+    if time_limit_s is not None:
+        h.setOptionValue("time_limit", float(time_limit_s))
+    for key, value in options.items():
+        if key not in _KNOWN:
+            warnings.warn(f"highs: unknown option {key!r} passed through to HiGHS", stacklevel=3)
+        h.setOptionValue(key, value)
+    h.run()
+    model_status = h.getModelStatus()
+    info = h.getInfo()
+    status = status_map.get(model_status, Status.ERROR)
+    has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    values = np.asarray(h.getSolution().col_value, dtype=np.float64) if has_solution else None
+    if relax or not model.integer.any():
+        bound = float(info.objective_function_value) if status is Status.OPTIMAL else None
+    else:
+        bound = float(info.mip_dual_bound) if np.isfinite(info.mip_dual_bound) else None
+    return BackendResult(status=status, values=values, bound=bound, version=version(),
+                         message=f"HiGHS: {h.modelStatusToString(model_status)}",
+                         details={"mip_node_count": int(getattr(info, "mip_node_count", 0))})

@@ -1,0 +1,80 @@
+"""SCIP adapter through OR-Tools' linear solver wrapper (pywraplp)."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+from ortools.linear_solver import pywraplp
+
+from l3gs_opt.solution import Status
+
+from ..linear import LinearModel
+from . import BackendResult, timed_out
+
+_KNOWN = {"threads"}
+
+
+def version() -> str:
+    import ortools
+
+    return f"ortools {ortools.__version__} (SCIP)"
+
+
+def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, options: dict[str, Any]) -> BackendResult:
+    start = time.perf_counter()
+    solver = pywraplp.Solver.CreateSolver("GLOP" if relax else "SCIP")
+    if solver is None:
+        return BackendResult(status=Status.ERROR, values=None, bound=None, version=version(),
+                             message="OR-Tools was built without SCIP")
+    inf = solver.infinity()
+    xs = []
+    for i in range(model.size.variables):
+        lb = model.lb[i] if np.isfinite(model.lb[i]) else -inf
+        ub = model.ub[i] if np.isfinite(model.ub[i]) else inf
+        xs.append(solver.IntVar(lb, ub, "") if (model.integer[i] and not relax) else solver.NumVar(lb, ub, ""))
+    csr = model.matrix
+    for r in range(model.size.constraints):
+        lb = model.row_lb[r] if np.isfinite(model.row_lb[r]) else -inf
+        ub = model.row_ub[r] if np.isfinite(model.row_ub[r]) else inf
+        ct = solver.Constraint(lb, ub)
+        for k in range(csr.indptr[r], csr.indptr[r + 1]):
+            ct.SetCoefficient(xs[csr.indices[k]], float(csr.data[k]))
+    objective = solver.Objective()
+    for i in np.nonzero(model.objective)[0]:
+        objective.SetCoefficient(xs[i], float(model.objective[i]))
+    objective.SetMaximization()
+    if time_limit_s is not None:
+        solver.SetTimeLimit(max(1, int(time_limit_s * 1000)))
+    for key, value in options.items():
+        if key == "threads":
+            solver.SetNumThreads(int(value))
+        else:
+            warnings.warn(f"scip: unknown option {key!r} ignored", stacklevel=3)
+    params = pywraplp.MPSolverParameters()
+    if not relax:
+        params.SetDoubleParam(params.RELATIVE_MIP_GAP, 0.0)
+    code = solver.Solve(params)
+    has_solution = code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE)
+    if code == pywraplp.Solver.OPTIMAL:
+        status = Status.OPTIMAL
+    elif code == pywraplp.Solver.FEASIBLE or code == pywraplp.Solver.NOT_SOLVED:
+        status = Status.TIME_LIMIT if timed_out(start, time_limit_s) else Status.FEASIBLE
+        if code == pywraplp.Solver.NOT_SOLVED and not timed_out(start, time_limit_s):
+            status = Status.ERROR
+    elif code == pywraplp.Solver.INFEASIBLE:
+        status = Status.INFEASIBLE
+    else:
+        status = Status.ERROR
+    values = np.array([v.solution_value() for v in xs]) if has_solution else None
+    bound = None
+    if relax:
+        bound = objective.Value() if status is Status.OPTIMAL else None
+    elif has_solution or status is Status.TIME_LIMIT:
+        b = objective.BestBound()
+        bound = float(b) if np.isfinite(b) and abs(b) < 1e300 else None
+    return BackendResult(status=status, values=values, bound=bound, version=version() + f" {solver.SolverVersion()}",
+                         message=f"SCIP result code {code}",
+                         details={"nodes": int(solver.nodes()) if not relax else 0})

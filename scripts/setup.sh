@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Create .venv/ at the repository root when missing and install the project into it
+# (editable, with test extras), pinning torch to the CPU build through constraints.txt.
+# Re-running is cheap: pip is skipped while pyproject.toml and constraints.txt are unchanged.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+py=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$py" -m venv .venv
+fi
+stamp=.venv/.l3gs-opt-installed
+want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || [ ! -x .venv/bin/l3gs-opt ]; then
+    .venv/bin/python -m pip install --quiet --upgrade pip
+    .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[test]"
+    echo "$want" > "$stamp"
+fi
