@@ -14,7 +14,7 @@ from .instance_io import instance_from_dict, load_instance, save_instance
 from .evaluate import evaluate_objective, feasibility_violations, is_feasible
 from .solution import GAP_TOL, ModelSize, Solution, Status, relative_gap
 from .presolve import presolve
-from .api import METHODS, solve
+from .api import METHODS, method_names, solve
 
 __version__ = "0.1.0"
 
@@ -37,6 +37,7 @@ __all__ = [
     "instance_from_dict",
     "is_feasible",
     "load_instance",
+    "method_names",
     "presolve",
     "relative_gap",
     "save_instance",

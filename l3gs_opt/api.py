@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from typing import Any, Callable, Mapping
 
-from .errors import SolveError
 from .instance import Instance
 from .solution import Solution
 
-__all__ = ["METHODS", "solve"]
+__all__ = ["METHODS", "method_names", "solve"]
 
 
 def _ilp(instance: Instance, **kw: Any) -> Solution:
@@ -23,15 +22,15 @@ def _lp(instance: Instance, **kw: Any) -> Solution:
     return solve_ilp(instance, relax=True, **kw)
 
 
-def _brute(instance: Instance, *, slot: int | None = None, **_model_options: Any) -> Solution:
-    # Enumeration needs no backend, form or presolve: those options do not apply and are ignored.
-    from l3gs_opt.solvers import solve_brute_force
-
-    return solve_brute_force(instance, slot=slot)
+#: Methods built on the exact models; every other name is resolved by l3gs_opt.solvers.registry.
+METHODS: dict[str, Callable[..., Solution]] = {"ilp": _ilp, "lp": _lp}
 
 
-#: Method name -> function(instance, **options) -> Solution.
-METHODS: dict[str, Callable[..., Solution]] = {"ilp": _ilp, "lp": _lp, "brute": _brute}
+def method_names() -> list[str]:
+    """Every method name ``solve`` accepts (parametrised ones as ``name:PARAM``)."""
+    from l3gs_opt.solvers.registry import names
+
+    return [*METHODS, *names()]
 
 
 def solve(instance: Instance, method: str = "ilp", *, backend: str = "highs", form: str = "standard",
@@ -42,9 +41,9 @@ def solve(instance: Instance, method: str = "ilp", *, backend: str = "highs", fo
     Parameters
     ----------
     instance : Instance
-    method : {"ilp", "lp", "brute"}
-        ``ilp``: exact model on ``backend``; ``lp``: its LP relaxation (a bound);
-        ``brute``: enumeration (tiny instances only).
+    method : str
+        ``ilp``: exact model on ``backend``; ``lp``: its LP relaxation (a bound); any name of
+        :func:`method_names`, e.g. ``brute`` (enumeration, tiny instances only).
     backend : {"cbc", "highs", "cpsat", "scip"}
     form : {"standard", "gap"}
         ``gap``: Problem A, the GAP form (layered only).
@@ -61,7 +60,11 @@ def solve(instance: Instance, method: str = "ilp", *, backend: str = "highs", fo
     SolveError
         Unknown method, form or backend; a slot out of range; an option that does not apply.
     """
-    if method not in METHODS:
-        raise SolveError(f"method {method!r} is not one of {', '.join(METHODS)}")
-    return METHODS[method](instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
+    if method in METHODS:
+        fn = METHODS[method]
+    else:
+        from l3gs_opt.solvers.registry import resolve
+
+        fn = resolve(method)
+    return fn(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
                            presolve=presolve, options=options)

@@ -1,4 +1,12 @@
-"""HiGHS adapter (highspy): builds a column-wise ``HighsLp`` and maps HiGHS's model status."""
+"""HiGHS adapter (highspy): builds a column-wise ``HighsLp`` and maps HiGHS's model status.
+
+HiGHS 1.14.0's MIP presolve returns a sub-optimal point as ``kOptimal`` on some models with
+continuous columns (singleton-column stuffing; ERGO-Code/HiGHS issues 2957, 3043, 3073, 3094,
+fixed in 1.15.0, which cannot share a process with OR-Tools 9.15). We saw it here on a 9-column
+Problem II model (tests/test_backends.py pins it). Work-around on 1.14: columns the formulation
+marks ``integral_ok`` are declared integer (their optimum is integral anyway), and a MIP that
+still has continuous columns is solved with presolve off.
+"""
 
 from __future__ import annotations
 
@@ -14,6 +22,7 @@ from l3gs_opt.solution import Status
 from ..linear import LinearModel
 from . import BackendResult
 
+_PRESOLVE_BUG = _pkg_version("highspy").startswith("1.14.")
 _KNOWN = {"threads", "presolve", "random_seed", "mip_feasibility_tolerance", "primal_feasibility_tolerance"}
 
 
@@ -44,10 +53,17 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     lp.a_matrix_.start_ = csc.indptr.astype(np.int32)
     lp.a_matrix_.index_ = csc.indices.astype(np.int32)
     lp.a_matrix_.value_ = csc.data
+    presolve_off = False
     if not relax and model.integer.any():
-        kinds = [highspy.HighsVarType.kInteger if i else highspy.HighsVarType.kContinuous for i in model.integer]
+        integer = model.integer
+        if _PRESOLVE_BUG:
+            integer = model.integer | model.integral_ok
+            presolve_off = not integer.all()
+        kinds = [highspy.HighsVarType.kInteger if i else highspy.HighsVarType.kContinuous for i in integer]
         lp.integrality_ = kinds
     h.passModel(lp)
+    if presolve_off:
+        h.setOptionValue("presolve", "off")
     h.setOptionValue("mip_rel_gap", 0.0)
     h.setOptionValue("mip_abs_gap", 0.0)
     if time_limit_s is not None:
@@ -68,4 +84,5 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         bound = float(info.mip_dual_bound) if np.isfinite(info.mip_dual_bound) else None
     return BackendResult(status=status, values=values, bound=bound, version=version(),
                          message=f"HiGHS: {h.modelStatusToString(model_status)}",
-                         details={"mip_node_count": int(getattr(info, "mip_node_count", 0))})
+                         details={"mip_node_count": int(getattr(info, "mip_node_count", 0)),
+                                  "presolve_off_workaround": presolve_off})
