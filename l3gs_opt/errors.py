@@ -24,7 +24,9 @@ class InstanceError(L3gsError, ValueError):
         self.field = field
         self.index = tuple(int(i) for i in index) if index is not None else None
         where = field + "".join(f"[{i}]" for i in self.index or ())
-        super().__init__(f"{where}: {message}")
+        # "cost[1][1] = 0: must be ..." reads better than "cost[1][1]: = 0: ..."
+        sep = " " if message.startswith("= ") else ": "
+        super().__init__(f"{where}{sep}{message}")
 
 
 class SolveError(L3gsError, ValueError):

@@ -93,6 +93,11 @@ class Options:
                 "budget": self.budget}
 
 
+def _show(value: np.generic) -> str:
+    """A numpy scalar as the user wrote it (``-0.5``, not ``np.float64(-0.5)``)."""
+    return repr(value.item())
+
+
 def _first_index(mask: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(mask)[0])
 
@@ -109,19 +114,19 @@ def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarr
         bad = ~np.isfinite(arr)
         if bad.any():
             idx = _first_index(bad)
-            raise InstanceError(name, f"= {arr[idx]}: must be {what}", idx)
+            raise InstanceError(name, f"= {_show(arr[idx])}: must be {what}", idx)
         frac = arr != np.floor(arr)
         if frac.any():
             idx = _first_index(frac)
-            raise InstanceError(name, f"= {arr[idx]!r}: must be {what}; fractional bytes", idx)
+            raise InstanceError(name, f"= {_show(arr[idx])}: must be {what}; fractional bytes", idx)
     low = arr <= 0 if positive else arr < 0
     if low.any():
         idx = _first_index(low)
-        raise InstanceError(name, f"= {arr[idx]}: must be {what}", idx)
+        raise InstanceError(name, f"= {_show(arr[idx])}: must be {what}", idx)
     high = arr > MAX_BYTES
     if high.any():
         idx = _first_index(high)
-        raise InstanceError(name, f"= {arr[idx]}: must be at most 2**53 = {MAX_BYTES} bytes", idx)
+        raise InstanceError(name, f"= {_show(arr[idx])}: must be at most 2**53 = {MAX_BYTES} bytes", idx)
     out = arr.astype(np.int64)
     out.setflags(write=False)
     return out
@@ -137,11 +142,11 @@ def _utility_array(value: Any) -> np.ndarray:
     bad = ~np.isfinite(out)
     if bad.any():
         idx = _first_index(bad)
-        raise InstanceError("utility", f"= {out[idx]}: must be finite", idx)
+        raise InstanceError("utility", f"= {_show(out[idx])}: must be finite", idx)
     neg = out < 0
     if neg.any():
         idx = _first_index(neg)
-        raise InstanceError("utility", f"= {out[idx]!r}: must be >= 0", idx)
+        raise InstanceError("utility", f"= {_show(out[idx])}: must be >= 0", idx)
     out.setflags(write=False)
     return out
 
@@ -242,7 +247,7 @@ class Instance:
             bad = (arr != 0) & (arr != 1)
             if bad.any():
                 idx = _first_index(bad)
-                raise InstanceError("held", f"= {arr[idx]!r}: must be 0 or 1", idx)
+                raise InstanceError("held", f"= {_show(arr[idx])}: must be 0 or 1", idx)
             out = arr.astype(bool)
             if self.representation == "layered" and L > 1:
                 gap = out[:, 1:] & ~out[:, :-1]

@@ -7,6 +7,7 @@ The parser walks nested lists itself so that a fault names its exact index
 from __future__ import annotations
 
 import json
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -26,6 +27,11 @@ _DIMS = {"bandwidth": ("slots",), "cost": ("objects", "layers"), "utility": ("sl
          "held": ("objects", "layers")}
 
 
+def _brief(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 24 else text[:21] + "..."
+
+
 def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
     """Nested JSON lists -> array, checking every entry's type and every list's length."""
     dims = _DIMS[name]
@@ -36,10 +42,10 @@ def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
         if depth == len(dims):
             if type(v) is bool or not isinstance(v, (int, float)):
                 raise InstanceError(name, f"= {v!r}: must be a number", idx)
-            if isinstance(v, int) and abs(v) > 2**63 - 1:
-                raise InstanceError(name, f"= {v}: out of range", idx)
-            if isinstance(v, float) and integer and v.is_integer() and abs(v) > 2**63 - 1:
-                raise InstanceError(name, f"= {v}: out of range", idx)
+            if integer and abs(v) > 2**63 - 1 and (isinstance(v, int) or math.isfinite(v)):
+                raise InstanceError(name, f"= {_brief(v)}: out of range", idx)
+            if not integer and isinstance(v, int) and abs(v) > 1e308:
+                raise InstanceError(name, f"= {_brief(v)}: must be finite", idx)
             flat.append(v)
             return
         if not isinstance(v, list):
@@ -58,16 +64,7 @@ def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
     elif integer:
         arr = np.array(flat, dtype=np.int64)
     else:
-        try:
-            arr = np.array(flat, dtype=np.float64)
-        except OverflowError:
-            for i, v in enumerate(flat):
-                try:
-                    float(v)
-                except OverflowError:
-                    raise InstanceError(name, f"= {v}: must be finite",
-                                        tuple(int(k) for k in np.unravel_index(i, full))) from None
-            raise
+        arr = np.array(flat, dtype=np.float64)
     return arr.reshape(full)
 
 

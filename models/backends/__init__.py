@@ -7,7 +7,9 @@ that "optimal" means proven optimal up to round-off.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
+import math
 import importlib
 import importlib.util
 import time
@@ -43,6 +45,7 @@ class Backend(str, enum.Enum):
             raise SolveError(f"backend {name!r} is not one of {', '.join(b.value for b in cls)}") from None
 
 
+_OBJECTIVE_TOP = 20  # log2 of the largest objective coefficient a backend sees
 _MODULE = {Backend.CBC: "cbc", Backend.HIGHS: "highs", Backend.CPSAT: "cpsat", Backend.SCIP: "scip"}
 _PACKAGE = {Backend.CBC: "pulp", Backend.HIGHS: "highspy", Backend.CPSAT: "ortools", Backend.SCIP: "ortools"}
 
@@ -84,7 +87,18 @@ def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: f
     if model.size.variables == 0:
         return BackendResult(status=Status.OPTIMAL, values=np.zeros(0), bound=0.0, version=module.version(),
                              message="empty model after presolve: nothing to solve")
-    return module.solve(model, time_limit_s=time_limit_s, relax=relax, options=dict(options or {}))
+    # Backends compare objective terms against absolute tolerances (CBC drops a lone 1e-9 utility as
+    # zero; HiGHS's 1e-7 dual tolerance lets a 1e-8 relative loss pass as optimal when the largest
+    # coefficient is ~1). Scaling by a power of two (exact in float64) so the largest coefficient is
+    # about 2**20 keeps every instance, whatever its utility units, at a relative accuracy of ~1e-13.
+    largest = float(np.abs(model.objective).max()) if model.objective.size else 0.0
+    scale = 2.0 ** (_OBJECTIVE_TOP - round(math.log2(largest))) if largest > 0 else 1.0
+    scaled = dataclasses.replace(model, objective=model.objective * scale)
+    result = module.solve(scaled, time_limit_s=time_limit_s, relax=relax, options=dict(options or {}))
+    if scale == 1.0:
+        return result
+    return dataclasses.replace(result, bound=None if result.bound is None else result.bound / scale,
+                               details={**result.details, "objective_prescale": scale})
 
 
 def finite_or(value: float, default: float) -> float:

@@ -35,12 +35,14 @@ def version(log: str = "") -> str:
 
 def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, options: dict[str, Any]) -> BackendResult:
     problem = pulp.LpProblem("l3gs", pulp.LpMaximize)
+    # PuLP 3.3 deprecates free-standing LpVariable in favour of LpProblem.add_variable.
+    new_var = getattr(problem, "add_variable", pulp.LpVariable)
     xs = []
     for i in range(model.size.variables):
         lb = model.lb[i] if np.isfinite(model.lb[i]) else None
         ub = model.ub[i] if np.isfinite(model.ub[i]) else None
         cat = pulp.LpInteger if (model.integer[i] and not relax) else pulp.LpContinuous
-        xs.append(pulp.LpVariable(f"v{i}", lowBound=lb, upBound=ub, cat=cat))
+        xs.append(new_var(f"v{i}", lowBound=lb, upBound=ub, cat=cat))
     nz = np.nonzero(model.objective)[0]
     problem += pulp.LpAffineExpression([(xs[i], float(model.objective[i])) for i in nz])
     csr = model.matrix
@@ -61,8 +63,12 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     fd, log_path = tempfile.mkstemp(suffix=".log", prefix="l3gs-cbc-")
     os.close(fd)
     try:
-        cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_limit_s, gapRel=0.0, gapAbs=0.0,
-                                logPath=log_path, **kwargs)
+        with warnings.catch_warnings():
+            # PuLP 3.3 announces PULP_CBC_CMD's removal in 4.0 (pyproject pins pulp<4): the bundled
+            # CBC binary is what makes the backend work on a fresh machine.
+            warnings.simplefilter("ignore", DeprecationWarning)
+            cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_limit_s, gapRel=0.0, gapAbs=0.0,
+                                    logPath=log_path, **kwargs)
         problem.solve(cmd)
         with open(log_path, encoding="utf-8", errors="replace") as fh:
             log = fh.read()

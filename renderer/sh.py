@@ -1,0 +1,95 @@
+"""Real spherical harmonics of degree 0-3, as used by 3DGS (and Plenoxels / the reference code).
+
+The colour of a splat seen along the unit direction ``d = (x, y, z)`` (camera centre to splat
+mean, world frame) is ``max(0, sum_k c_k Y_k(d) + 0.5)`` per channel, with the constants below
+and the sign convention of the reference implementation's ``eval_sh`` (``utils/sh_utils.py``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "eval_sh", "sh_to_color", "rgb_to_sh_dc"]
+
+SH_C0 = 0.28209479177387814
+SH_C1 = 0.4886025119029199
+SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
+         -1.0925484305920792, 0.5462742152960396)
+SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+         -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+
+def eval_sh(degree: int, sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    """Evaluate the SH expansion (without the +0.5 offset).
+
+    Parameters
+    ----------
+    degree : int
+        0..3; only the first ``(degree + 1) ** 2`` coefficients are used.
+    sh : Tensor, shape [..., K, 3]
+        Coefficients, ``K >= (degree + 1) ** 2``.
+    dirs : Tensor, shape [..., 3]
+        Unit view directions.
+
+    Returns
+    -------
+    Tensor, shape [..., 3]
+    """
+    if degree not in (0, 1, 2, 3):
+        raise ValueError(f"degree: {degree} must be 0, 1, 2 or 3")
+    if sh.shape[-2] < (degree + 1) ** 2:
+        raise ValueError(f"sh: {sh.shape[-2]} coefficients cannot hold degree {degree}")
+    res = SH_C0 * sh[..., 0, :]
+    if degree < 1:
+        return res
+    x, y, z = (dirs[..., i:i + 1] for i in range(3))
+    res = res - SH_C1 * y * sh[..., 1, :] + SH_C1 * z * sh[..., 2, :] - SH_C1 * x * sh[..., 3, :]
+    if degree < 2:
+        return res
+    xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+    res = (res + SH_C2[0] * xy * sh[..., 4, :] + SH_C2[1] * yz * sh[..., 5, :]
+           + SH_C2[2] * (2.0 * zz - xx - yy) * sh[..., 6, :]
+           + SH_C2[3] * xz * sh[..., 7, :] + SH_C2[4] * (xx - yy) * sh[..., 8, :])
+    if degree < 3:
+        return res
+    return (res + SH_C3[0] * y * (3.0 * xx - yy) * sh[..., 9, :]
+            + SH_C3[1] * xy * z * sh[..., 10, :]
+            + SH_C3[2] * y * (4.0 * zz - xx - yy) * sh[..., 11, :]
+            + SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[..., 12, :]
+            + SH_C3[4] * x * (4.0 * zz - xx - yy) * sh[..., 13, :]
+            + SH_C3[5] * z * (xx - yy) * sh[..., 14, :]
+            + SH_C3[6] * x * (xx - 3.0 * yy) * sh[..., 15, :])
+
+
+def sh_to_color(sh: torch.Tensor, means: torch.Tensor, camera_center: torch.Tensor,
+                degree: int | None = None) -> torch.Tensor:
+    """View-dependent RGB of each splat: ``clamp_min(eval_sh(d) + 0.5, 0)``.
+
+    Parameters
+    ----------
+    sh : Tensor, shape [N, K, 3]
+    means : Tensor, shape [N, 3]
+        World positions.
+    camera_center : Tensor, shape [3]
+        Camera centre in world coordinates.
+    degree : int, optional
+        Defaults to the degree of ``K``.
+
+    Returns
+    -------
+    Tensor, shape [N, 3]
+        Not clamped from above (as in the reference rasteriser).
+    """
+    if degree is None:
+        degree = {1: 0, 4: 1, 9: 2, 16: 3}[sh.shape[-2]]
+    if degree == 0:
+        return torch.clamp_min(SH_C0 * sh[..., 0, :] + 0.5, 0.0)
+    d = means - camera_center
+    # (clamped so that a splat at the camera centre, culled anyway, cannot give NaN gradients)
+    d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True).clamp_min(1e-12)
+    return torch.clamp_min(eval_sh(degree, sh, d) + 0.5, 0.0)
+
+
+def rgb_to_sh_dc(rgb):
+    """DC coefficient that renders as ``rgb`` (``(rgb - 0.5) / SH_C0``); works on arrays and tensors."""
+    return (rgb - 0.5) / SH_C0

@@ -1,0 +1,615 @@
+"""Array core of the single-slot multiple-choice knapsack (MCKP): options, LP hull, bb, dp, fptas.
+
+Everything here works on a padded option table (:class:`OptionTable`) rather than on an
+:class:`~l3gs_opt.instance.Instance`, so that the rolling schedulers can call it each slot
+with their own valuation (e.g. future utility). :mod:`l3gs_opt.solvers.mckp` wraps it for
+instances and returns :class:`~l3gs_opt.solution.Solution` objects.
+
+Problem, per row ``i`` (an object with something left to gain) and option ``o``::
+
+    max  sum_i value[i, o_i]     s.t.  sum_i cost[i, o_i] <= budget,
+
+where each row takes at most one option (``o_i`` may be "none", cost 0, value 0). Costs are
+exact integer bytes (int64), values float64.
+
+Conventions: rows hold their options sorted by cost, Pareto-filtered (value strictly increasing
+with cost) and left-packed; ``valid[i, k]`` marks real entries. ``level[i, k]`` says what the
+option means for the caller (layered: the top layer reached; separate: the version).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from l3gs_opt.errors import SolveError
+
+__all__ = [
+    "BOUND_SLACK",
+    "MAX_DP_CELLS",
+    "MAX_BB_STATES",
+    "OptionTable",
+    "LpRelaxation",
+    "MckpResult",
+    "build_table",
+    "lp_relaxation",
+    "greedy",
+    "branch_and_bound",
+    "dynamic_programme",
+    "fptas",
+]
+
+#: Relative slack added to LP and Lagrangian bounds, and used as the pruning tolerance of the
+#: branch-and-bound. Why: the upper hull is computed with float64 cross products and values are
+#: float64 sums, so a bound can come out low by a few ulps times the number of rows (<= 1e5 rows
+#: times 2.2e-16 is about 2e-11 at worst, in practice far less). 1e-11 keeps every reported
+#: bound valid and stays two orders of magnitude under ``GAP_TOL`` (1e-9), the gap that counts
+#: as proven optimal.
+BOUND_SLACK = 1e-11
+
+#: Largest DP table (rows x (capacity + 1) cells, one byte each for the choice) ``dp`` and
+#: ``fptas`` accept: 50 M cells is 50 MB for the choices plus two float64 rows.
+MAX_DP_CELLS = 50_000_000
+
+#: Largest number of live states the branch-and-bound keeps in one stage before giving up
+#: the exact search (it then returns its best answer with a valid bound, status time_limit).
+MAX_BB_STATES = 4_000_000
+
+_INT_INF = np.iinfo(np.int64).max
+
+
+@dataclass(frozen=True, eq=False)
+class OptionTable:
+    """The MCKP of one slot as padded arrays.
+
+    Attributes
+    ----------
+    rows : int array [n]
+        The object (j) of each row.
+    cost : int64 array [n, K]
+        Extra bytes of each option (0 where not valid).
+    value : float64 array [n, K]
+        Extra utility of each option (0 where not valid).
+    valid : bool array [n, K]
+        Real options; left-packed, sorted by cost, values strictly increasing.
+    level : int array [n, K]
+        Layered: the top layer the option reaches (layers ``held_levels[j]..level`` arrive).
+        Separate: the version that arrives.
+    budget : int
+        Bytes available.
+    """
+
+    rows: np.ndarray
+    cost: np.ndarray
+    value: np.ndarray
+    valid: np.ndarray
+    level: np.ndarray
+    budget: int
+
+    @property
+    def n(self) -> int:
+        return int(self.rows.shape[0])
+
+    @property
+    def counts(self) -> np.ndarray:
+        return self.valid.sum(axis=1)
+
+
+def build_table(*, layered: bool, cost: np.ndarray, gain: np.ndarray, held: np.ndarray, budget: int,
+                same_slot_layers: bool = True, pareto: bool = True) -> OptionTable:
+    """The option table of one slot (vectorised :func:`l3gs_opt.presolve.mckp_options`).
+
+    Parameters
+    ----------
+    layered : bool
+    cost : int array [J, L]
+        Bytes per layer (layered) or per whole version (separate).
+    gain : float array [J, L]
+        Value of showing each chunk: per-layer value (layered, 0 for held layers) or the
+        version's value above the best held version, clipped at 0 (separate, 0 for held).
+    held : bool array [J, L]
+    budget : int
+        Bytes available in the slot.
+    same_slot_layers : bool
+        Layered only: False allows one layer per object (the next one).
+    pareto : bool
+        Drop options over the budget, worth nothing, or dominated (as the core presolve does).
+        Must stay True for :func:`lp_relaxation` and the solvers.
+    """
+    cost = np.asarray(cost, dtype=np.int64)
+    gain = np.asarray(gain, dtype=np.float64)
+    held = np.asarray(held, dtype=bool)
+    J, L = cost.shape
+    if layered:
+        h = held.sum(axis=1)
+        cc = np.cumsum(cost, axis=1)
+        base = np.where(h > 0, cc[np.arange(J), np.maximum(h - 1, 0)], 0) if L else np.zeros(J, np.int64)
+        ocost = cc - base[:, None]
+        # Held layers have gain 0, so the cumulative sum from layer 0 adds the same terms in the
+        # same order as a sum from layer h (exact zeros first): values agree bit for bit.
+        ovalue = np.cumsum(np.where(held, 0.0, gain), axis=1)
+        lev = np.broadcast_to(np.arange(L), (J, L))
+        ok = lev >= h[:, None]
+        if not same_slot_layers:
+            ok &= lev == h[:, None]
+    else:
+        ocost = cost.copy()
+        ovalue = np.where(held, 0.0, gain)
+        lev = np.broadcast_to(np.arange(L), (J, L))
+        ok = ~held
+    if pareto:
+        ok &= (ocost <= budget) & (ovalue > 0)
+    key_cost = np.where(ok, ocost, _INT_INF)
+    if not layered:
+        # Sort each row by (cost ascending, value descending).
+        o1 = np.argsort(-np.where(ok, ovalue, -np.inf), axis=1, kind="stable")
+        o2 = np.argsort(np.take_along_axis(key_cost, o1, axis=1), axis=1, kind="stable")
+        order = np.take_along_axis(o1, o2, axis=1)
+        ocost, ovalue, ok, lev = (np.take_along_axis(a, order, axis=1) for a in (ocost, ovalue, ok, np.asarray(lev)))
+    if pareto and L > 1:
+        vals = np.where(ok, ovalue, -np.inf)
+        prev = np.maximum.accumulate(vals, axis=1)
+        prev = np.concatenate([np.full((J, 1), -np.inf), prev[:, :-1]], axis=1)
+        ok &= ovalue > prev
+    # Left-pack the valid entries and drop rows with none.
+    pack = np.argsort(~ok, axis=1, kind="stable")
+    ocost, ovalue, ok, lev = (np.take_along_axis(np.asarray(a), pack, axis=1) for a in (ocost, ovalue, ok, lev))
+    counts = ok.sum(axis=1)
+    K = int(counts.max()) if J else 0
+    rows = np.nonzero(counts > 0)[0]
+    ok = ok[rows, :K]
+    return OptionTable(rows=rows, cost=np.where(ok, ocost[rows, :K], 0), value=np.where(ok, ovalue[rows, :K], 0.0),
+                       valid=ok, level=lev[rows, :K].astype(np.int64), budget=int(budget))
+
+
+# -- LP relaxation ------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class LpRelaxation:
+    """The LP relaxation of an :class:`OptionTable` and its greedy rounding.
+
+    Attributes
+    ----------
+    value : float
+        LP optimum (``BOUND_SLACK`` not included).
+    slope : float
+        Slope (value per byte) of the break increment (0 when everything fits).
+    choice : int array [n]
+        Option index of each row in the integral part of the LP (-1: none).
+    slopes : float array [m]
+        Every hull increment's slope, sorted descending (for Lagrangian multipliers).
+    break_index : int
+        Position of the break increment in ``slopes`` (m when everything fits).
+    break_row, break_option : int
+        Row and hull option the break increment leads to (-1 when none).
+    """
+
+    value: float
+    slope: float
+    choice: np.ndarray
+    slopes: np.ndarray
+    break_index: int
+    break_row: int
+    break_option: int
+
+
+def _hull(table: OptionTable) -> np.ndarray:
+    """Bool [n, K]: options on the upper convex hull of {(0, 0)} and the row's options."""
+    n, K = table.cost.shape
+    c = np.concatenate([np.zeros((n, 1)), table.cost.astype(np.float64)], axis=1)
+    v = np.concatenate([np.zeros((n, 1)), table.value], axis=1)
+    keep = np.concatenate([np.ones((n, 1), bool), table.valid], axis=1)
+    idx = np.broadcast_to(np.arange(K + 1), (n, K + 1))
+    while True:
+        prev = np.maximum.accumulate(np.where(keep, idx, -1), axis=1)
+        prev = np.concatenate([np.full((n, 1), -1), prev[:, :-1]], axis=1)
+        nxt = np.flip(np.minimum.accumulate(np.flip(np.where(keep, idx, K + 1), axis=1), axis=1), axis=1)
+        nxt = np.concatenate([nxt[:, 1:], np.full((n, 1), K + 1)], axis=1)
+        inner = keep & (prev >= 0) & (nxt <= K)
+        p = np.clip(prev, 0, K)
+        q = np.clip(nxt, 0, K)
+        cp, vp = np.take_along_axis(c, p, 1), np.take_along_axis(v, p, 1)
+        cq, vq = np.take_along_axis(c, q, 1), np.take_along_axis(v, q, 1)
+        # Point i is not a hull vertex when slope(prev, i) <= slope(i, next).
+        drop = inner & ((v - vp) * (cq - c) <= (vq - v) * (c - cp))
+        if not drop.any():
+            return keep[:, 1:]
+        keep = keep & ~drop
+
+
+def lp_relaxation(table: OptionTable) -> LpRelaxation:
+    """Solve the LP relaxation by the upper hulls: increments sorted by slope, filled greedily."""
+    n, K = table.cost.shape
+    if n == 0:
+        return LpRelaxation(0.0, 0.0, np.zeros(0, np.int64), np.zeros(0), 0, -1, -1)
+    hull = _hull(table)
+    # Increments between consecutive hull vertices (the origin first).
+    hc = np.where(hull, table.cost, 0)
+    hv = np.where(hull, table.value, 0.0)
+    prev_c = np.maximum.accumulate(hc, axis=1)
+    prev_v = np.maximum.accumulate(hv, axis=1)
+    prev_c = np.concatenate([np.zeros((n, 1), np.int64), prev_c[:, :-1]], axis=1)
+    prev_v = np.concatenate([np.zeros((n, 1)), prev_v[:, :-1]], axis=1)
+    rr, kk = np.nonzero(hull)
+    dc = (table.cost - prev_c)[rr, kk]
+    dv = (table.value - prev_v)[rr, kk]
+    slope = dv / dc
+    # Within a row slopes decrease; force it in float (a running minimum per row) so that a
+    # row's increments are always taken as a prefix.
+    order_rk = np.lexsort((kk, rr))
+    s_fixed = slope[order_rk]
+    starts = np.r_[True, rr[order_rk][1:] != rr[order_rk][:-1]]
+    for _ in range(K - 1):  # K (levels per row) is small
+        s_fixed = np.where(starts, s_fixed, np.minimum(s_fixed, np.r_[np.inf, s_fixed[:-1]]))
+    slope = np.empty_like(slope)
+    slope[order_rk] = s_fixed
+    order = np.lexsort((kk, -slope))
+    cum = np.cumsum(dc[order])
+    b = int(np.searchsorted(cum, table.budget, side="right"))  # first increment that does not fit
+    m = len(order)
+    taken = order[:b]
+    choice = np.full(n, -1, dtype=np.int64)
+    np.maximum.at(choice, rr[taken], kk[taken])
+    value = float(dv[taken].sum())
+    used = int(cum[b - 1]) if b > 0 else 0
+    if b < m:
+        k = order[b]
+        value += (table.budget - used) / dc[k] * dv[k]
+        lam = float(slope[k])
+        brow, bopt = int(rr[k]), int(kk[k])
+    else:
+        lam, brow, bopt = 0.0, -1, -1
+    return LpRelaxation(value=value, slope=lam, choice=choice, slopes=slope[order], break_index=b,
+                        break_row=brow, break_option=bopt)
+
+
+# -- results --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class MckpResult:
+    """Chosen option per row (-1: none), the value of that choice, a valid upper bound, and
+    whether the answer is proven optimal."""
+
+    choice: np.ndarray
+    value: float
+    bound: float
+    optimal: bool
+    stats: dict
+
+
+def _pick(table: OptionTable, choice: np.ndarray) -> tuple[int, float]:
+    sel = choice >= 0
+    r = np.nonzero(sel)[0]
+    return int(table.cost[r, choice[r]].sum()), math.fsum(table.value[r, choice[r]].tolist())
+
+
+def _improve(table: OptionTable, choice: np.ndarray, rounds: int = 4) -> np.ndarray:
+    """Greedy fill: repeatedly apply the single best upgrade that fits the spare bytes."""
+    choice = choice.copy()
+    n = table.n
+    ar = np.arange(n)
+    for _ in range(rounds):
+        used, _ = _pick(table, choice)
+        spare = table.budget - used
+        cur_c = np.where(choice >= 0, table.cost[ar, np.maximum(choice, 0)], 0)
+        cur_v = np.where(choice >= 0, table.value[ar, np.maximum(choice, 0)], 0.0)
+        extra_c = table.cost - cur_c[:, None]
+        gain = np.where(table.valid & (extra_c <= spare), table.value - cur_v[:, None], -np.inf)
+        if gain.size == 0:
+            break
+        flat = int(np.argmax(gain))
+        i, k = divmod(flat, gain.shape[1])
+        if not gain[i, k] > 0:
+            break
+        choice[i] = k
+    return choice
+
+
+def greedy(table: OptionTable, lp: LpRelaxation | None = None) -> MckpResult:
+    """LP-greedy: the integral part of the LP, then the best upgrades that still fit; also tries
+    the break option alone, so the answer is at least half the LP value."""
+    lp = lp_relaxation(table) if lp is None else lp
+    choice = _improve(table, lp.choice)
+    _, value = _pick(table, choice)
+    if lp.break_row >= 0:
+        alone = np.full(table.n, -1, dtype=np.int64)
+        alone[lp.break_row] = lp.break_option
+        alone = _improve(table, alone)
+        _, v2 = _pick(table, alone)
+        if v2 > value:
+            choice, value = alone, v2
+    bound = max(lp.value * (1 + BOUND_SLACK), value)
+    return MckpResult(choice=choice, value=value, bound=bound, optimal=False, stats={"lp": lp.value})
+
+
+# -- branch and bound ------------------------------------------------------------------------------
+
+def _multipliers(lp: LpRelaxation) -> np.ndarray:
+    """Lagrange multipliers to bound with: the break slope and slopes of increments near it."""
+    m = len(lp.slopes)
+    if m == 0 or lp.break_index >= m:
+        return np.array([lp.slope])
+    pos = lp.break_index + np.array([0, -1, 1, -3, 3, -10, 10, -40, 40, -200, 200])
+    pos = np.clip(pos, 0, m - 1)
+    lams = np.unique(np.concatenate([[lp.slope], lp.slopes[pos], [0.0]]))
+    return lams[lams >= 0]
+
+
+def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
+                     max_states: int = MAX_BB_STATES) -> MckpResult:
+    """Exact MCKP: LP bound, Lagrangian reduction, then a bounded dynamic programme over the
+    rows that are not fixed (an expanding core in the spirit of Pisinger's minimal algorithm).
+
+    1. LP relaxation from the upper hulls; the greedy rounding gives an incumbent ``z``.
+    2. For a few multipliers ``lam`` (the break slope and slopes next to it) the Lagrangian
+       bound ``sum_i max_o (v - lam c) + lam * budget`` holds for every solution; fixing row i
+       to option o lowers it by that option's reduced-profit shortfall. Options whose bound is
+       no better than ``z`` (within ``BOUND_SLACK``) are removed; rows left with one option
+       are fixed.
+    3. The remaining rows are added one at a time (closest to the break first) to a list of
+       undominated partial solutions (bytes, value) - Nemhauser-Ullmann states, exact in
+       integer bytes. Each state is bounded by ``value + min_lam (F_rest(lam) + lam *
+       (budget - bytes))`` and pruned when that is no better than ``z``; completing a state
+       with the LP choices of the rows not yet added may improve ``z``.
+
+    The reported bound is the largest bound of anything pruned (or, when stopped early, of any
+    live state), never below ``z``: a valid upper bound in every case.
+    """
+    started = time.perf_counter()
+    n, K = table.cost.shape
+    stats: dict = {"rows": n}
+    if n == 0:
+        return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, stats)
+    lp = lp_relaxation(table)
+    inc = greedy(table, lp)
+    z, best_choice = inc.value, inc.choice
+    stats["lp"] = lp.value
+    stats["greedy"] = z
+    tol = BOUND_SLACK * max(abs(lp.value), 1e-300)
+    if lp.break_index >= len(lp.slopes) or lp.value - z <= tol:
+        return MckpResult(best_choice, z, max(z, lp.value + tol), True, {**stats, "core": 0})
+    B = table.budget
+    lams = _multipliers(lp)                                      # [q]
+    cst = table.cost.astype(np.float64)
+    valid = table.valid
+    # Reduced profits per option and for "none" (column K), per multiplier: [n, K+1, q]
+    red = np.where(valid[:, :, None], table.value[:, :, None] - cst[:, :, None] * lams, -np.inf)
+    red = np.concatenate([red, np.zeros((n, 1, len(lams)))], axis=1)
+    f = red.max(axis=1)                                          # [n, q]
+    F = f.sum(axis=0)                                            # [q]
+    root = F + lams * B
+    # Bound with row i fixed to option o: min over lam of (F - f_i + red_io + lam B).
+    fixed_bound = (root[None, None, :] - f[:, None, :] + red).min(axis=2)   # [n, K+1]
+    ub_root = float(root.min())
+    allowed = np.concatenate([valid, np.ones((n, 1), bool)], axis=1) & (fixed_bound > z + tol)
+    removed = np.concatenate([valid, np.ones((n, 1), bool)], axis=1) & ~allowed
+    discarded = float(fixed_bound[removed].max()) if removed.any() else -np.inf
+    cnt = allowed.sum(axis=1)
+    if (cnt == 0).any():   # some row has no option left: nothing beats z
+        return MckpResult(best_choice, z, max(z, discarded), True, {**stats, "core": 0})
+    # Row i's options as (index, cost, value); index K means none.
+    a = lp.choice                                                 # LP integral choice (-1: none)
+    a_idx = np.where(a >= 0, a, K)
+    a_cost = np.where(a >= 0, table.cost[np.arange(n), np.maximum(a, 0)], 0)
+    a_val = np.where(a >= 0, table.value[np.arange(n), np.maximum(a, 0)], 0.0)
+    fixed = cnt == 1
+    fix_idx = np.argmax(allowed, axis=1)
+    costs_ext = np.concatenate([table.cost, np.zeros((n, 1), np.int64)], axis=1)
+    vals_ext = np.concatenate([table.value, np.zeros((n, 1))], axis=1)
+    fr = np.nonzero(fixed)[0]
+    W0 = int(costs_ext[fr, fix_idx[fr]].sum())
+    P0 = math.fsum(vals_ext[fr, fix_idx[fr]].tolist())
+    free = np.nonzero(~fixed)[0]
+    # Bound contributions of the free rows restricted to their allowed options.
+    f_free = np.where(allowed[free][:, :, None], red[free], -np.inf).max(axis=1)   # [nf, q]
+    f_fixed = red[fr, fix_idx[fr]]                                                  # [nfix, q]
+    # Order: rows whose best alternative to the LP choice costs least in the bound first.
+    alt = np.where(allowed[free], fixed_bound[free], -np.inf)
+    alt[np.arange(len(free)), a_idx[free]] = -np.inf
+    order = np.argsort(-alt.max(axis=1), kind="stable")
+    free = free[order]
+    f_free = f_free[order]
+    stats["core"] = int(len(free))
+    stats["fixed"] = int(len(fr))
+    F_rest = f_free.sum(axis=0)   # bound contribution of free rows not yet added
+    # Fixed rows' contribution is exact: P0 and W0 are inside every state.
+    min_cost_free = np.where(allowed[free], costs_ext[free], _INT_INF).min(axis=1)
+    min_rest = int(min_cost_free.sum())
+    comp_c_rest = int(a_cost[free].sum())
+    comp_v_rest = float(a_val[free].sum())
+    W = np.array([W0], dtype=np.int64)
+    P = np.array([P0])
+    parents: list[np.ndarray] = []
+    picks: list[np.ndarray] = []
+    best_at: tuple[int, int] | None = None     # (stage, state) of the incumbent's completion
+    stopped = None
+    for s, i in enumerate(free):
+        if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+            stopped = "time limit"
+            break
+        opts = np.nonzero(allowed[i])[0]
+        c_o, v_o = costs_ext[i, opts], vals_ext[i, opts]
+        F_rest = F_rest - f_free[s]
+        min_rest -= int(min_cost_free[s])
+        comp_c_rest -= int(a_cost[i])
+        comp_v_rest -= float(a_val[i])
+        nW = (W[:, None] + c_o[None, :]).ravel()
+        nP = (P[:, None] + v_o[None, :]).ravel()
+        par = np.repeat(np.arange(len(W)), len(opts))
+        pk = np.tile(opts, len(W))
+        ok = nW + min_rest <= B
+        ub = nP + (F_rest[None, :] + lams[None, :] * (B - nW)[:, None].astype(np.float64)).min(axis=1)
+        live = ok & (ub > z + tol)
+        dead = ok & ~live
+        if dead.any():
+            discarded = max(discarded, float(ub[dead].max()))
+        nW, nP, par, pk = nW[live], nP[live], par[live], pk[live]
+        # Undominated states: sorted by bytes, value strictly above every cheaper state.
+        srt = np.lexsort((-nP, nW))
+        nW, nP, par, pk = nW[srt], nP[srt], par[srt], pk[srt]
+        if len(nP) > 1:
+            run = np.maximum.accumulate(nP)
+            keep = np.r_[True, nP[1:] > run[:-1]]
+            nW, nP, par, pk = nW[keep], nP[keep], par[keep], pk[keep]
+        W, P = nW, nP
+        parents.append(par)
+        picks.append(pk)
+        if len(W) == 0:
+            break
+        # Complete with the LP choices of the rows not yet added.
+        cv = P + comp_v_rest
+        feas = W + comp_c_rest <= B
+        if feas.any():
+            k = int(np.argmax(np.where(feas, cv, -np.inf)))
+            if cv[k] > z:
+                z, best_at = float(cv[k]), (s, k)
+        if len(W) > max_states:
+            stopped = f"more than {max_states} states"
+            break
+    stats["stages"] = len(parents)
+    stats["final_states"] = int(len(W))
+    if stopped is None:
+        bound = max(z, discarded)
+        optimal = True
+    else:
+        # Live states (with the rows not yet added) still bound the rest of the search.
+        live_ub = -np.inf
+        if len(W):
+            rest = F_rest[None, :] + lams[None, :] * (B - W)[:, None].astype(np.float64)
+            live_ub = float((P + rest.min(axis=1)).max())
+        if not parents:
+            live_ub = ub_root
+        bound = max(z, discarded, live_ub)
+        optimal = False
+        stats["stopped"] = stopped
+    if best_at is not None:
+        s, k = best_at
+        choice = np.where(a >= 0, a, -1).copy()
+        choice[fr] = np.where(fix_idx[fr] < K, fix_idx[fr], -1)
+        for stage in range(s, -1, -1):
+            o = int(picks[stage][k])
+            choice[free[stage]] = o if o < K else -1
+            k = int(parents[stage][k])
+        best_choice = choice
+        # The incumbent value is recomputed from the choice (float sums in one order).
+        z = _pick(table, best_choice)[1]
+    return MckpResult(best_choice, z, max(bound, z), optimal, stats)
+
+
+# -- dynamic programmes ----------------------------------------------------------------------------
+
+def _choice_dtype(K: int) -> type:
+    return np.uint8 if K < 255 else np.uint16
+
+
+def dynamic_programme(table: OptionTable, *, max_cells: int = MAX_DP_CELLS) -> MckpResult:
+    """Exact DP over bytes divided by the greatest common divisor of every option cost.
+
+    ``best[w]`` is the largest value with at most ``w`` units; one pass per row, one numpy
+    operation per option. Memory: one byte per (row, unit) for the choices.
+
+    Raises
+    ------
+    SolveError
+        When rows x (capacity + 1) exceeds ``max_cells``.
+    """
+    n, K = table.cost.shape
+    if n == 0:
+        return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, {"rows": 0})
+    g = int(np.gcd.reduce(table.cost[table.valid]))
+    cap = table.budget // g
+    cells = n * (cap + 1)
+    if cells > max_cells:
+        raise SolveError(f"dp: the table would have {n} rows x {cap + 1} byte units (gcd {g} bytes) = {cells} "
+                         f"cells, more than the limit of {max_cells}; use bb or fptas:EPS")
+    units = table.cost // g
+    best = np.zeros(cap + 1)
+    choice = np.zeros((n, cap + 1), dtype=_choice_dtype(K))
+    for i in range(n):
+        new = best.copy()
+        row = choice[i]
+        for k in range(int(table.valid[i].sum())):
+            c = int(units[i, k])
+            cand = best[:cap + 1 - c] + table.value[i, k]
+            tgt = new[c:]
+            better = cand > tgt
+            tgt[better] = cand[better]
+            row[c:][better] = k + 1
+        best = new
+    out = np.full(n, -1, dtype=np.int64)
+    w = cap
+    for i in range(n - 1, -1, -1):
+        k = int(choice[i, w])
+        if k:
+            out[i] = k - 1
+            w -= int(units[i, k - 1])
+    value = _pick(table, out)[1]
+    return MckpResult(out, value, max(value, float(best[cap])), True,
+                      {"rows": n, "gcd": g, "capacity_units": cap, "cells": cells})
+
+
+def fptas(table: OptionTable, eps: float, *, max_cells: int = MAX_DP_CELLS) -> MckpResult:
+    """(1 - eps)-approximation by profit scaling.
+
+    With a feasible value ``z0 >= LP/2`` (the greedy) and ``k = eps * z0 / n``, values are
+    scaled to ``floor(v / k)`` and a DP over scaled profit finds the least bytes for each
+    profit. For the optimum S*: ``OPT <= k * (best scaled profit) + |S*| k <= value + n k
+    = value + eps z0``, so ``value >= (1 - eps) OPT`` and ``value + n k`` is a valid bound.
+
+    Raises
+    ------
+    SolveError
+        For eps outside (0, 1), or when rows x scaled-profit range exceeds ``max_cells``.
+    """
+    if not (0 < eps < 1):
+        raise SolveError(f"fptas: eps = {eps!r}: must be in (0, 1)")
+    n, K = table.cost.shape
+    if n == 0:
+        return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, {"rows": 0})
+    lp = lp_relaxation(table)
+    inc = greedy(table, lp)
+    z0 = inc.value
+    if not z0 > 0:
+        return MckpResult(inc.choice, z0, max(z0, lp.value), False, {"rows": n})
+    k = eps * z0 / n
+    profit = np.where(table.valid, np.floor(table.value / k), 0).astype(np.int64)
+    top = int(math.floor(lp.value * (1 + BOUND_SLACK) / k)) + 1
+    cells = n * (top + 1)
+    if cells > max_cells:
+        raise SolveError(f"fptas: the table would have {n} rows x {top + 1} profit units = {cells} cells, "
+                         f"more than the limit of {max_cells}; use a larger eps or bb")
+    sentinel = table.budget + 1
+    least = np.full(top + 1, sentinel, dtype=np.int64)
+    least[0] = 0
+    choice = np.zeros((n, top + 1), dtype=_choice_dtype(K))
+    for i in range(n):
+        new = least.copy()
+        row = choice[i]
+        for kk in range(int(table.valid[i].sum())):
+            p = int(profit[i, kk])
+            if p <= 0 or p > top:
+                continue
+            cand = np.minimum(least[:top + 1 - p] + table.cost[i, kk], sentinel)
+            tgt = new[p:]
+            better = cand < tgt
+            tgt[better] = cand[better]
+            row[p:][better] = kk + 1
+        least = new
+    reach = np.nonzero(least <= table.budget)[0]
+    p = int(reach.max())
+    best_p = p
+    out = np.full(n, -1, dtype=np.int64)
+    for i in range(n - 1, -1, -1):
+        kk = int(choice[i, p])
+        if kk:
+            out[i] = kk - 1
+            p -= int(profit[i, kk - 1])
+    value = _pick(table, out)[1]
+    if value < z0:   # never return less than the greedy (the guarantee holds for both)
+        out, value = inc.choice, z0
+    bound = min(lp.value * (1 + BOUND_SLACK), k * best_p + n * k)
+    return MckpResult(out, value, max(bound, value), False,
+                      {"rows": n, "eps": eps, "scale": k, "profit_units": top, "cells": cells, "lp": lp.value})

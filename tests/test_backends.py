@@ -1,0 +1,123 @@
+"""The four backends agree, load in one process, respect time limits and report honest statuses."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+
+import numpy as np
+import pytest
+
+from l3gs_opt import BackendUnavailableError, Options, SolveError, Status, instance_from_dict, is_feasible, solve
+from l3gs_opt.models import Backend, build_model, installed_backends, solve_model
+from l3gs_opt.synth import synth_instance
+
+from core_helpers import ALL_OPTIONS, option_id, random_instance
+
+BACKENDS = [b.value for b in Backend]
+
+
+def test_all_backends_installed_and_loaded_in_one_process():
+    """highspy 1.15 and OR-Tools 9.15 cannot share a process (or-tools issue 5246): we pin <1.15."""
+    import highspy  # noqa: F401
+    import pulp  # noqa: F401
+    from ortools.linear_solver import pywraplp  # noqa: F401
+    from ortools.sat.python import cp_model  # noqa: F401
+
+    assert [b.value for b in installed_backends()] == BACKENDS
+    inst = random_instance(np.random.default_rng(0), T=3, J=3, L=2)
+    values = {b: solve(inst, "ilp", backend=b).objective for b in BACKENDS}
+    assert max(values.values()) - min(values.values()) <= 1e-9 * max(1.0, max(values.values()))
+
+
+@pytest.mark.parametrize("options", ALL_OPTIONS[::3], ids=option_id)
+@pytest.mark.parametrize("representation", ["layered", "separate"])
+def test_backends_agree(representation, options):
+    rng = np.random.default_rng(21)
+    for _ in range(3):
+        inst = random_instance(rng, representation=representation, options=options, T=4, J=3, L=3, held_p=0.2,
+                               cost_range=(1, 12))
+        forms = ("standard", "gap") if representation == "layered" else ("standard",)
+        results = [solve(inst, "ilp", backend=b, form=f) for b in BACKENDS for f in forms]
+        results += [solve(inst, "ilp", backend=b, slot=1) for b in BACKENDS]
+        for sol in results:
+            assert sol.status is Status.OPTIMAL, (sol.backend, sol.message)
+            assert is_feasible(inst, sol.arrivals, slot=sol.slot)
+        multi = [s.objective for s in results if s.slot is None]
+        single = [s.objective for s in results if s.slot is not None]
+        for group in (multi, single):
+            assert max(group) - min(group) <= 1e-9 * max(1.0, max(group))
+
+
+def test_regression_highs_114_presolve_suboptimal_on_continuous_columns():
+    """HiGHS 1.14.0 MIP presolve returned 0.0552 as 'optimal' here (true optimum 0.9615)."""
+    inst = instance_from_dict({
+        "schema": "l3gs-opt/instance@1", "representation": "separate", "bandwidth": [0, 4, 0],
+        "cost": [[4, 6], [3, 1]],
+        "utility": [[[0.12278668983093588, 0.0], [0.9644422946030824, 0.13879931374418641]],
+                    [[0.32560518130116345, 0.19170774478901242], [0.0, 0.05524774634655205]],
+                    [[0.6359148477125465, 0.0], [0.0, 0.0]]]})
+    for backend in BACKENDS:
+        sol = solve(inst, "ilp", backend=backend)
+        assert math.isclose(sol.objective, 0.32560518130116345 + 0.6359148477125465, rel_tol=1e-12), backend
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_time_limit_bites_and_is_reported(backend):
+    """J=50, T=10 is out of reach of every generic MILP in 60 s on this machine; 1.5 s must bite."""
+    inst = synth_instance(objects=50, layers=4, slots=10, seed=1, start=300)
+    sol = solve(inst, "ilp", backend=backend, time_limit_s=1.5)
+    assert sol.status is Status.TIME_LIMIT, (sol.status, sol.message)
+    assert is_feasible(inst, sol.arrivals)
+    assert sol.bound is not None and sol.bound >= sol.objective
+    assert sol.gap is not None and sol.gap > 0
+    assert sol.runtime_s < 30
+
+
+def test_lp_relaxation_is_a_bound():
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        inst = random_instance(rng, T=4, J=3, L=3, cost_range=(1, 12))
+        opt = solve(inst, "ilp")
+        for backend in ("highs", "cbc", "scip"):
+            lp = solve(inst, "lp", backend=backend)
+            assert lp.status is Status.FEASIBLE and lp.arrivals == ()
+            assert lp.bound >= opt.objective - 1e-9
+    with pytest.raises(SolveError, match="cannot solve an LP relaxation"):
+        solve(inst, "lp", backend="cpsat")
+
+
+def test_cpsat_reports_its_scaling_error():
+    inst = random_instance(np.random.default_rng(4), T=3, J=3, L=2)
+    sol = solve(inst, "ilp", backend="cpsat")
+    d = sol.details
+    assert d["objective_scale"] > 0 and 0 <= d["scaling_error_bound"] <= 0.5 / d["objective_scale"] * 100
+    assert d["optimality_error_bound"] == 2 * d["scaling_error_bound"]
+
+
+def test_unknown_backend_and_option(recwarn):
+    inst = random_instance(np.random.default_rng(1))
+    with pytest.raises(SolveError, match=r"backend 'gurobi' is not one of cbc, highs, cpsat, scip"):
+        solve(inst, "ilp", backend="gurobi")
+    with pytest.warns(UserWarning, match="unknown option 'fancy'"):
+        solve(inst, "ilp", backend="scip", options={"fancy": 1})
+    with pytest.raises(SolveError, match=r"time_limit_s = -1: must be > 0"):
+        solve(inst, "ilp", time_limit_s=-1)
+
+
+def test_missing_backend_library_is_a_clear_error(monkeypatch):
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pulp" else real(name, *a))
+    inst = random_instance(np.random.default_rng(1))
+    with pytest.raises(BackendUnavailableError, match="needs the package 'pulp'"):
+        solve_model(build_model(inst), "cbc")
+
+
+def test_gap_form_rejects_separate_and_slot():
+    inst = random_instance(np.random.default_rng(1), representation="separate")
+    with pytest.raises(SolveError, match="form 'gap' is defined for the layered"):
+        solve(inst, "ilp", form="gap")
+    with pytest.raises(SolveError, match=r"slot = 7: must be an integer in 0\.\.2"):
+        solve(inst, "ilp", slot=7)
+    with pytest.raises(SolveError, match="no GAP form"):
+        solve(random_instance(np.random.default_rng(1)), "ilp", form="gap", slot=0)
