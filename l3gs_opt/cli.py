@@ -68,6 +68,87 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit)
 
 
+def _csv(text: str | None, kind: type = str) -> list | None:
+    if text is None:
+        return None
+    try:
+        return [kind(part.strip()) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a comma-separated list of {kind.__name__}") from None
+
+
+def _check_methods(methods: list[str] | None) -> None:
+    from .errors import SolveError
+    from .suites import available
+
+    for m in methods or []:
+        if not available(m):
+            raise SolveError(f"method {m!r} is unknown (see l3gs-opt solve --help for method names)")
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import BenchTask, run_bench
+    from .report import write_report
+    from .suites import SUITES, default_methods, suite_specs
+
+    suites = list(SUITES) if args.suite == "all" else [args.suite]
+    methods = _csv(args.methods)
+    _check_methods(methods)
+    sizes = args.sizes
+    tasks = []
+    for suite in suites:
+        for spec in suite_specs(suite, sizes=sizes, seeds=args.seeds, quick=args.quick):
+            tasks += [BenchTask(spec, m) for m in (methods or default_methods(spec, quick=args.quick))]
+    out = Path(args.out)
+    records = run_bench(tasks, out / "results.jsonl", time_limit_s=args.time_limit, jobs=args.jobs,
+                        executor=args.executor, address=args.address, resume=args.resume,
+                        progress=not args.no_progress)
+    report = write_report(records, out)
+    print(f"records: {records}\nreport: {report}")
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .errors import SolveError
+    from .report import write_report
+
+    if not Path(args.records).exists():
+        raise SolveError(f"{args.records}: no such results file")
+    print(f"report: {write_report(args.records, args.out)}")
+    return 0
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from .bench import BenchTask, read_records, run_bench
+    from .instance_io import load_instance
+    from .report import annotate, write_report
+    from .suites import InstanceSpec, default_methods
+
+    inst = load_instance(args.instance)  # fail early, with the instance's own error
+    single = args.slot is not None or inst.T == 1
+    spec = InstanceSpec("compare", Path(args.instance).stem, "file",
+                        {"path": str(Path(args.instance).resolve()), "slot": args.slot}, single)
+    methods = _csv(args.methods) or default_methods(spec)
+    _check_methods(methods)
+    out = Path(args.out)
+    path = out / "compare.jsonl"
+    if path.exists():
+        path.unlink()
+    run_bench([BenchTask(spec, m) for m in methods], path, time_limit_s=args.time_limit, jobs=1,
+              progress=not args.no_progress)
+    rows = annotate(read_records(path))
+    width = max(len(r["method"]) for r in rows)
+    print(f"{'method'.ljust(width)}  status      objective     bound         rel. error  time (s)  flags")
+    for r in sorted(rows, key=lambda r: r["runtime_s"]):
+        bound = "-" if r.get("bound") is None else f"{r['bound']:<12.6g}"
+        obj = "-" if r.get("objective") is None else f"{r['objective']:<12.6g}"
+        err = "-" if r.get("rel_error") is None else f"{r['rel_error']:.2e}"
+        print(f"{r['method'].ljust(width)}  {r['status']:<10}  {obj:<12}  {bound:<12}  {err:<10}  "
+              f"{r['runtime_s']:<8.3f}  {','.join(r.get('flags', [])) or '-'}")
+    print(f"report: {write_report(path, out, title=f'compare {args.instance}')}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .models.backends import Backend
 
@@ -104,6 +185,36 @@ def build_parser() -> argparse.ArgumentParser:
     c = inst.add_parser("check", help="validate an instance file and summarise it")
     c.add_argument("instance")
     c.set_defaults(func=_cmd_check)
+
+    b = sub.add_parser("bench", help="run benchmark suites: one JSONL record per (instance, method)")
+    b.add_argument("--suite", default="all", choices=["all", "l3gs", "pisinger", "stiff", "problems"])
+    b.add_argument("--methods", default=None, help="comma-separated labels, e.g. ilp/highs,bb,fptas:0.01")
+    b.add_argument("--sizes", default=None, type=lambda text: _csv(text, int),
+                   help="comma-separated object counts J")
+    b.add_argument("--seeds", type=int, default=3)
+    b.add_argument("--time-limit", type=float, default=60.0, metavar="S", help="seconds per record")
+    b.add_argument("--jobs", type=int, default=1, help="parallel processes (0: in this process)")
+    b.add_argument("--executor", default="local", choices=["local", "dask"])
+    b.add_argument("--address", default=None, help="Dask scheduler address (default: a local cluster)")
+    b.add_argument("--out", default="bench-out", help="folder for results.jsonl, report.md and plots")
+    b.add_argument("--quick", action="store_true", help="a representative subset (minutes)")
+    b.add_argument("--resume", action="store_true", help="continue a results file, skipping finished records")
+    b.add_argument("--no-progress", action="store_true")
+    b.set_defaults(func=_cmd_bench)
+
+    r = sub.add_parser("report", help="write report.md and PNG plots from a results file")
+    r.add_argument("records", help="results.jsonl")
+    r.add_argument("--out", required=True)
+    r.set_defaults(func=_cmd_report)
+
+    k = sub.add_parser("compare", help="run several methods on one instance: table and plot")
+    k.add_argument("instance")
+    k.add_argument("--methods", default=None)
+    k.add_argument("--slot", type=int, default=None)
+    k.add_argument("--time-limit", type=float, default=60.0, metavar="S")
+    k.add_argument("--out", default="compare-out")
+    k.add_argument("--no-progress", action="store_true")
+    k.set_defaults(func=_cmd_compare)
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")

@@ -319,6 +319,16 @@ class Instance:
             out["meta"] = copy.deepcopy(dict(self.meta))
         return out
 
+    def __reduce__(self):
+        # meta is a read-only mapping proxy, which pickle cannot copy: rebuild (and re-validate) instead.
+        return (_rebuild, (self.representation, self.bandwidth, self.cost, self.utility, self.held, self.slot_s,
+                           self.options, self.names, copy.deepcopy(dict(self.meta))))
+
     def __repr__(self) -> str:
         return (f"Instance(problem={self.problem}, representation={self.representation!r}, T={self.T}, "
                 f"J={self.J}, L={self.L}, options={self.options})")
+
+
+def _rebuild(representation, bandwidth, cost, utility, held, slot_s, options, names, meta) -> Instance:
+    return Instance(representation=representation, bandwidth=bandwidth, cost=cost, utility=utility, held=held,
+                    slot_s=slot_s, options=options, names=names, meta=meta)

@@ -12,7 +12,13 @@ fi
 stamp=.venv/.l3gs-opt-installed
 want=$(cat pyproject.toml constraints.txt | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || [ ! -x .venv/bin/l3gs-opt ]; then
-    .venv/bin/python -m pip install --quiet --upgrade pip
-    .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[test]"
+    echo "setting up .venv (pip install -e .[test], torch pinned to the CPU build) ..." >&2
+    log=.venv/pip-install.log
+    if ! { .venv/bin/python -m pip install --upgrade pip \
+           && .venv/bin/python -m pip install -c constraints.txt -e ".[test]"; } > "$log" 2>&1; then
+        cat "$log" >&2
+        echo "set-up failed; the pip log is $log" >&2
+        exit 1
+    fi
     echo "$want" > "$stamp"
 fi
