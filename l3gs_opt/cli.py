@@ -65,7 +65,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
-    return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit)
+    return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit, bench=not args.no_bench)
 
 
 def _csv(text: str | None, kind: type = str) -> list | None:
@@ -97,10 +97,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     sizes = args.sizes
     tasks = []
     for suite in suites:
-        for spec in suite_specs(suite, sizes=sizes, seeds=args.seeds, quick=args.quick):
+        seeds = args.seeds if args.seeds is not None else (1 if args.quick else 3)
+        for spec in suite_specs(suite, sizes=sizes, seeds=seeds, quick=args.quick):
             tasks += [BenchTask(spec, m) for m in (methods or default_methods(spec, quick=args.quick))]
     out = Path(args.out)
-    records = run_bench(tasks, out / "results.jsonl", time_limit_s=args.time_limit, jobs=args.jobs,
+    time_limit = args.time_limit if args.time_limit is not None else (5.0 if args.quick else 60.0)
+    records = run_bench(tasks, out / "results.jsonl", time_limit_s=time_limit, jobs=args.jobs,
                         executor=args.executor, address=args.address, resume=args.resume,
                         progress=not args.no_progress)
     report = write_report(records, out)
@@ -191,8 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--methods", default=None, help="comma-separated labels, e.g. ilp/highs,bb,fptas:0.01")
     b.add_argument("--sizes", default=None, type=lambda text: _csv(text, int),
                    help="comma-separated object counts J")
-    b.add_argument("--seeds", type=int, default=3)
-    b.add_argument("--time-limit", type=float, default=60.0, metavar="S", help="seconds per record")
+    b.add_argument("--seeds", type=int, default=None, help="seeds per size (default 3, 1 with --quick)")
+    b.add_argument("--time-limit", type=float, default=None, metavar="S",
+                   help="seconds per record (default 60, 5 with --quick)")
     b.add_argument("--jobs", type=int, default=1, help="parallel processes (0: in this process)")
     b.add_argument("--executor", default="local", choices=["local", "dask"])
     b.add_argument("--address", default=None, help="Dask scheduler address (default: a local cluster)")
@@ -219,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")
     d.add_argument("--time-limit", type=float, default=10.0, metavar="S", help="seconds per exact solve")
+    d.add_argument("--no-bench", action="store_true", help="skip the quick benchmark (seconds instead of minutes)")
     d.set_defaults(func=_cmd_demo)
     return parser
 

@@ -1,7 +1,9 @@
-"""The README's demo: a real 5G trace, an L3GS-like scene, every exact backend and form, compared.
+"""The README's demo: which method should a scheduler use, how far from optimal, at what cost?
 
-Writes the instance, one JSON record per solve (as each finishes) and a markdown table to the
-output folder, and prints the table.
+1. The quick benchmark (``l3gs-opt bench --quick``): every suite, exact ILPs against the fast
+   solvers and schedulers, a table per suite and plots in ``OUT/bench/``.
+2. One L3GS-like scene on a real 5G trace solved by every backend in both forms, with the
+   single-slot knapsack, compared in one table (``OUT/instance.json``, ``OUT/results.jsonl``).
 """
 
 from __future__ import annotations
@@ -25,8 +27,34 @@ DEMO_SETTINGS = {"objects": 8, "layers": 4, "slots": 20, "seed": 0, "trace": "lu
                  "mbps": 11.8, "start": 100}
 
 
-def run_demo(out_dir: Path = Path("demo-out"), time_limit_s: float = 10.0) -> int:
+def _quick_bench(out_dir: Path) -> None:
+    from .bench import BenchTask, read_records, run_bench
+    from .report import annotate, summarise, write_report
+    from .suites import SUITES, default_methods, suite_specs
+
+    bench_dir = out_dir / "bench"
+    tasks = [BenchTask(spec, m) for suite in SUITES for spec in suite_specs(suite, seeds=1, quick=True)
+             for m in default_methods(spec, quick=True)]
+    print(f"1. quick benchmark: {len(tasks)} records (instance x method), 5 s per record at most")
+    path = run_bench(tasks, bench_dir / "results.jsonl", time_limit_s=5.0, jobs=1, resume=True)
+    report = write_report(path, bench_dir, title="l3gs-opt quick benchmark")
+    records = annotate(read_records(path))
+    for suite, methods in summarise(records).items():
+        print(f"\n  suite {suite}:  method / records / proven optimal / median time s / median error / max error")
+        for m, s in sorted(methods.items(), key=lambda kv: kv[1]["median_time_s"] or 0):
+            err = "bound only" if s["bound_only"] else (f"{s['median_error']:.1e} / {s['max_error']:.1e}"
+                                                        if s["median_error"] is not None else "-")
+            t = "-" if s["median_time_s"] is None else f"{s['median_time_s']:.4f}"
+            flags = f"  FLAGS: {', '.join(s['flags'])}" if s["flags"] else ""
+            print(f"    {m:<20} {s['records']:>3} {s['optimal']:>3}  {t:>9}  {err}{flags}")
+    print(f"\n  report with plots: {report}\n")
+
+
+def run_demo(out_dir: Path = Path("demo-out"), time_limit_s: float = 10.0, bench: bool = True) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
+    if bench:
+        _quick_bench(out_dir)
+        print("2. one scene, every exact backend and form")
     instance = synth_instance(**DEMO_SETTINGS)
     save_instance(instance, out_dir / "instance.json")
     meta = instance.meta

@@ -34,7 +34,9 @@ ERROR_FLOOR = 1e-12
 
 
 def annotate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Recompute best known optimum, relative error and bound validity per instance from all records."""
+    """Recompute best known optimum, relative error and bound validity per instance from all records;
+    suites mixing single-slot and multi-slot instances are split into ``SUITE-single-slot`` and
+    ``SUITE-multi-slot``."""
     by_instance: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for r in records:
         by_instance[(r["suite"], r["instance_id"])].append(r)
@@ -56,6 +58,14 @@ def annotate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
             r["bound_valid"] = None if bound is None or best is None else \
                 bool(bound >= best - AGREE_TOL * max(abs(best), 1e-12))
             out.append(r)
+    # A suite with single-slot and multi-slot instances is reported as two groups, so that a
+    # method run on one kind only is never ranked against one run on both.
+    kinds: dict[str, set[bool]] = defaultdict(set)
+    for r in out:
+        kinds[r["suite"]].add(r.get("problem") == "MCKP")
+    for r in out:
+        if len(kinds[r["suite"]]) > 1:
+            r["suite"] = f"{r['suite']}-{'single-slot' if r.get('problem') == 'MCKP' else 'multi-slot'}"
     return out
 
 
@@ -226,14 +236,6 @@ def write_report(records_path: str | os.PathLike[str] | Iterable[dict], out_dir:
     out.mkdir(parents=True, exist_ok=True)
     raw = read_records(records_path) if isinstance(records_path, (str, os.PathLike)) else list(records_path)
     records = annotate(raw)
-    # A suite with single-slot and multi-slot instances is reported as two groups, so that a
-    # method run on one kind only is never ranked against one run on both.
-    kinds: dict[str, set[bool]] = defaultdict(set)
-    for r in records:
-        kinds[r["suite"]].add(r.get("problem") == "MCKP")
-    for r in records:
-        if len(kinds[r["suite"]]) > 1:
-            r["suite"] = f"{r['suite']}-{'single-slot' if r.get('problem') == 'MCKP' else 'multi-slot'}"
     summary = summarise(records)
     lines = [f"# {title}", "", f"{len(records)} records, {len({r['instance_id'] for r in records})} instances.", ""]
     for suite in sorted(summary):

@@ -97,8 +97,18 @@ def test_console_script_installed():
 
 
 def test_demo_runs_and_reports(tmp_path, capsys):
-    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--time-limit", "10")
+    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--time-limit", "10", "--no-bench")
     assert code == 0, err
     assert "all agree" in out
     lines = (tmp_path / "demo" / "results.jsonl").read_text().splitlines()
     assert len(lines) >= 12 and all(json.loads(line)["status"] in ("optimal", "feasible") for line in lines)
+
+
+@pytest.mark.slow
+def test_full_demo_with_quick_bench(tmp_path, capsys):
+    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"))
+    assert code == 0, err
+    assert out.startswith("1. quick benchmark") and "suite stiff" in out and "all agree" in out
+    assert "FLAGS" not in out
+    report = (tmp_path / "demo" / "bench" / "report.md").read_text()
+    assert "## Suite `pisinger`" in report and "error against run time" in report
