@@ -151,6 +151,25 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from .predictors import bandwidth_errors, viewport_errors
+
+    if args.target == "viewport":
+        from .poses import read_pose_log
+
+        result = viewport_errors(read_pose_log(args.input), hw_s=args.hw, pw_s=args.pw, method=args.method).to_dict()
+    else:
+        from .traces import read_bandwidth_trace
+
+        trace = read_bandwidth_trace(args.input)
+        result = bandwidth_errors(trace.mbps, window=args.window, robust=args.robust, method=args.method)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print("  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in result.items()))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .models.backends import Backend
 
@@ -218,6 +237,23 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", default="compare-out")
     k.add_argument("--no-progress", action="store_true")
     k.set_defaults(func=_cmd_compare)
+
+    pr = sub.add_parser("predict", help="viewport and bandwidth predictors and their errors").add_subparsers(
+        dest="target", required=True)
+    pv = pr.add_parser("viewport", help="mean errors of a viewport predictor on a headset log")
+    pv.add_argument("input", metavar="LOG")
+    pv.add_argument("--hw", type=float, default=0.5, help="history window (s)")
+    pv.add_argument("--pw", type=float, default=1.0, help="prediction window (s)")
+    pv.add_argument("--method", default="lr", choices=["lr", "last", "oracle"])
+    pv.add_argument("--json", action="store_true")
+    pv.set_defaults(func=_cmd_predict)
+    pb = pr.add_parser("bandwidth", help="mean absolute error of a bandwidth predictor on a trace")
+    pb.add_argument("input", metavar="TRACE")
+    pb.add_argument("--window", type=int, default=5, help="samples in the harmonic mean")
+    pb.add_argument("--robust", action="store_true", help="RobustMPC's discount by past errors")
+    pb.add_argument("--method", default="harmonic", choices=["harmonic", "last", "oracle"])
+    pb.add_argument("--json", action="store_true")
+    pb.set_defaults(func=_cmd_predict)
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")
