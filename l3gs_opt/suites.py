@@ -254,6 +254,9 @@ def default_methods(spec: InstanceSpec, *, quick: bool = False) -> list[str]:
             methods.remove("brute")
         if quick and J > 200:
             methods = [m for m in methods if m not in ("ilp/cbc", "ilp/scip", "fptas:0.01")]
+        if chunks > 20_000:
+            # One generic MILP is reference enough at this size (the solvers benchmark races all four).
+            methods = [m for m in methods if m not in ("ilp/cbc", "ilp/scip", "ilp/cpsat")]
     else:
         methods = list(_MULTI_SLOT_METHODS)
         if chunks * T > 10:
