@@ -73,7 +73,8 @@ def bytes_per_splat(sh_degree: int) -> int:
     """Bytes per splat in the reference float32 PLY layout without normals.
 
     ``3`` (mean) + ``3 (d+1)^2`` (SH) + ``1`` (opacity) + ``3`` (scale) + ``4`` (rotation)
-    float32 values: 56 bytes at degree 0, 248 bytes at degree 3.
+    float32 values: 56 bytes at degree 0, 236 bytes at degree 3 (the reference file adds
+    12 bytes of zero normals).
     """
     return 4 * (3 + 3 * (int(sh_degree) + 1) ** 2 + 1 + 3 + 4)
 

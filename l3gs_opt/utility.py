@@ -88,7 +88,7 @@ def splat_utility(scene: SplatScene, camera: Camera, *, area: str = "square",
         overlap = torch.where(proj.visible, overlap, torch.zeros_like(overlap))
         centre = torch.as_tensor(camera.center, dtype=dtype)
         dist = torch.linalg.norm(means - centre, dim=1).clamp(min=distance_floor)
-        opacity = torch.sigmoid(torch.as_tensor(scene.opacity_logits, dtype=dtype))
+        opacity = torch.sigmoid(torch.tensor(scene.opacity_logits, dtype=dtype))
         return (overlap / dist * opacity).to(torch.float64).numpy()
 
 

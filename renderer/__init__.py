@@ -1,6 +1,30 @@
-"""The bundled CPU splat renderer, image metrics, procedural scenes and the trainer (PyTorch).
+"""The bundled CPU splat renderer (PyTorch, differentiable), image metrics and procedural scenes.
 
-Filled by the renderer and trainer issues; importing this package needs nothing yet.
+Public API
+----------
+render_gaussians, render_scene, scene_tensors, RenderOutput
+    Splat parameters or a ``SplatScene`` + ``Camera`` -> image, alpha, depth, per-splat weights.
+project_gaussians, covariances_from_params, quat_to_rotmat, Projection
+    The projection step on its own (reuse one projection for rendering and utilities).
+rasterize, Raster
+    Compositing of already projected splats.
+eval_sh, sh_to_color
+    Spherical-harmonic colour.
+psnr, ssim
+    Image metrics (scikit-image; LPIPS is not available offline).
+
+Scene and camera I/O live in :mod:`l3gs_opt.scene_io`, :mod:`l3gs_opt.cameras`,
+:mod:`l3gs_opt.scene_make` and :mod:`l3gs_opt.camera_paths`.
 """
 
-__all__: list[str] = []
+from .metrics import MetricError, psnr, ssim
+from .projection import (NEAR_PLANE, TILE_SIZE, Projection, covariances_from_params, project_gaussians,
+                         quat_to_rotmat)
+from .rasterize import Raster, rasterize
+from .render import RenderOutput, render_gaussians, render_scene, scene_tensors
+from .sh import eval_sh, sh_to_color
+
+__all__ = ["render_gaussians", "render_scene", "scene_tensors", "RenderOutput",
+           "project_gaussians", "covariances_from_params", "quat_to_rotmat", "Projection",
+           "NEAR_PLANE", "TILE_SIZE", "rasterize", "Raster", "eval_sh", "sh_to_color",
+           "psnr", "ssim", "MetricError"]

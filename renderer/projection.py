@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 __all__ = ["NEAR_PLANE", "TILE_SIZE", "Projection", "quat_to_rotmat", "covariances_from_params",
@@ -67,7 +68,7 @@ class Projection(NamedTuple):
 
 def camera_tensors(camera, dtype=torch.float32, device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(world_to_camera [4, 4], camera centre [3])`` of a :class:`l3gs_opt.cameras.Camera` as tensors."""
-    w2c = torch.as_tensor(camera.world_to_camera, dtype=torch.float64)
+    w2c = torch.tensor(np.array(camera.world_to_camera, dtype=np.float64))
     center = -(w2c[:3, :3].T @ w2c[:3, 3])
     return w2c.to(dtype=dtype, device=device), center.to(dtype=dtype, device=device)
 

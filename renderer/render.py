@@ -84,7 +84,8 @@ def render_gaussians(means: torch.Tensor, log_scales: torch.Tensor, quats: torch
     proj = project_gaussians(means, covars, camera, near=near)
     _, center = camera_tensors(camera, dtype, dev)
     colors = sh_to_color(sh, means, center, sh_degree)
-    bg = torch.as_tensor(camera.background if background is None else background, dtype=dtype, device=dev)
+    bg = torch.tensor(np.array(camera.background if background is None else background, dtype=np.float64),
+                      dtype=dtype, device=dev)
     ras = rasterize(proj.means2d, proj.conics, torch.sigmoid(opacity_logits), colors, proj.depths,
                     proj.radii, camera.width, camera.height, bg)
     return RenderOutput(image=ras.image, alpha=ras.alpha, depth=ras.depth, weights=ras.weights,

@@ -1,9 +1,30 @@
 """Algorithms that are not a generic ILP.
 
-Today: the brute-force reference. The exact MCKP solvers, heuristics and rolling-horizon
-schedulers of the solvers issue land here, each returning the same :class:`~l3gs_opt.Solution`.
+Single slot (the paper's Lemma 3 MCKP): exact branch-and-bound (``bb``) and DP (``dp``), the
+``fptas:EPS`` approximation and the LP-greedy (``greedy``). Multi-slot (Problems I-IV):
+rolling-horizon schedulers (``rolling:SOLVER``, ``rolling-future:SOLVER``, ``mpc:H``) and the
+order heuristics (``progressive``, ``slope``, ``static``), each reporting the LP relaxation as
+a certified bound. Brute force is the reference every one of them is tested against.
 """
 
 from .brute_force import MAX_SCHEDULES, solve_brute_force
+from .bounds import lp_bound
+from .heuristics import slope_fractional_value, solve_progressive, solve_slope, solve_static
+from .mckp import solve_bb, solve_dp, solve_fptas, solve_greedy
+from .rolling import solve_mpc, solve_rolling
 
-__all__ = ["MAX_SCHEDULES", "solve_brute_force"]
+__all__ = [
+    "MAX_SCHEDULES",
+    "lp_bound",
+    "slope_fractional_value",
+    "solve_bb",
+    "solve_brute_force",
+    "solve_dp",
+    "solve_fptas",
+    "solve_greedy",
+    "solve_mpc",
+    "solve_progressive",
+    "solve_rolling",
+    "solve_slope",
+    "solve_static",
+]

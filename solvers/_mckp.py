@@ -35,6 +35,7 @@ __all__ = [
     "LpRelaxation",
     "MckpResult",
     "build_table",
+    "hull_increments",
     "lp_relaxation",
     "greedy",
     "branch_and_bound",
@@ -194,6 +195,8 @@ class LpRelaxation:
     break_index: int
     break_row: int
     break_option: int
+    inc_cost: np.ndarray | None = None
+    inc_value: np.ndarray | None = None
 
 
 def _hull(table: OptionTable) -> np.ndarray:
@@ -220,11 +223,10 @@ def _hull(table: OptionTable) -> np.ndarray:
         keep = keep & ~drop
 
 
-def lp_relaxation(table: OptionTable) -> LpRelaxation:
-    """Solve the LP relaxation by the upper hulls: increments sorted by slope, filled greedily."""
+def hull_increments(table: OptionTable) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every row's upper-hull increments: ``(row, option, bytes, value, slope)``, slopes forced
+    non-increasing within a row (a running minimum guards against float ties), unsorted."""
     n, K = table.cost.shape
-    if n == 0:
-        return LpRelaxation(0.0, 0.0, np.zeros(0, np.int64), np.zeros(0), 0, -1, -1)
     hull = _hull(table)
     # Increments between consecutive hull vertices (the origin first).
     hc = np.where(hull, table.cost, 0)
@@ -246,6 +248,15 @@ def lp_relaxation(table: OptionTable) -> LpRelaxation:
         s_fixed = np.where(starts, s_fixed, np.minimum(s_fixed, np.r_[np.inf, s_fixed[:-1]]))
     slope = np.empty_like(slope)
     slope[order_rk] = s_fixed
+    return rr, kk, dc, dv, slope
+
+
+def lp_relaxation(table: OptionTable) -> LpRelaxation:
+    """Solve the LP relaxation by the upper hulls: increments sorted by slope, filled greedily."""
+    n, K = table.cost.shape
+    if n == 0:
+        return LpRelaxation(0.0, 0.0, np.zeros(0, np.int64), np.zeros(0), 0, -1, -1)
+    rr, kk, dc, dv, slope = hull_increments(table)
     order = np.lexsort((kk, -slope))
     cum = np.cumsum(dc[order])
     b = int(np.searchsorted(cum, table.budget, side="right"))  # first increment that does not fit
@@ -263,6 +274,7 @@ def lp_relaxation(table: OptionTable) -> LpRelaxation:
     else:
         lam, brow, bopt = 0.0, -1, -1
     return LpRelaxation(value=value, slope=lam, choice=choice, slopes=slope[order], break_index=b,
+                        inc_cost=dc[order], inc_value=dv[order],
                         break_row=brow, break_option=bopt)
 
 
@@ -286,25 +298,67 @@ def _pick(table: OptionTable, choice: np.ndarray) -> tuple[int, float]:
     return int(table.cost[r, choice[r]].sum()), math.fsum(table.value[r, choice[r]].tolist())
 
 
-def _improve(table: OptionTable, choice: np.ndarray, rounds: int = 4) -> np.ndarray:
-    """Greedy fill: repeatedly apply the single best upgrade that fits the spare bytes."""
+def _improve(table: OptionTable, choice: np.ndarray, rounds: int = 64) -> np.ndarray:
+    """Greedy fill: repeatedly apply the single most valuable upgrade that fits the spare bytes."""
     choice = choice.copy()
     n = table.n
+    if n == 0:
+        return choice
+    ar = np.arange(n)
+    has = choice >= 0
+    cur_c = np.where(has, table.cost[ar, np.maximum(choice, 0)], 0)
+    cur_v = np.where(has, table.value[ar, np.maximum(choice, 0)], 0.0)
+    spare = table.budget - int(cur_c.sum())
+    K = table.cost.shape[1]
+    for _ in range(rounds):
+        gain = np.where(table.valid & (table.cost - cur_c[:, None] <= spare), table.value - cur_v[:, None], -np.inf)
+        flat = int(np.argmax(gain))
+        i, k = divmod(flat, K)
+        if not gain[i, k] > 0:
+            break
+        spare -= int(table.cost[i, k] - cur_c[i])
+        cur_c[i], cur_v[i], choice[i] = table.cost[i, k], table.value[i, k], k
+    return choice
+
+
+def _swap(table: OptionTable, choice: np.ndarray, lam: float, rounds: int = 8, width: int = 256) -> np.ndarray:
+    """Pair moves: change one row's option to a cheaper one and another's to a dearer one when
+    together they fit the spare bytes and gain value. Candidates are the ``width`` moves of
+    each kind with the best reduced gain ``dv - lam * dc``."""
+    choice = choice.copy()
+    n, K = table.cost.shape
     ar = np.arange(n)
     for _ in range(rounds):
         used, _ = _pick(table, choice)
         spare = table.budget - used
         cur_c = np.where(choice >= 0, table.cost[ar, np.maximum(choice, 0)], 0)
         cur_v = np.where(choice >= 0, table.value[ar, np.maximum(choice, 0)], 0.0)
-        extra_c = table.cost - cur_c[:, None]
-        gain = np.where(table.valid & (extra_c <= spare), table.value - cur_v[:, None], -np.inf)
-        if gain.size == 0:
+        # Moves to every option and to "none" (column K).
+        dc = np.concatenate([table.cost, np.zeros((n, 1), np.int64)], axis=1) - cur_c[:, None]
+        dv = np.concatenate([table.value, np.zeros((n, 1))], axis=1) - cur_v[:, None]
+        ok = np.concatenate([table.valid, np.ones((n, 1), bool)], axis=1)
+        red = dv - lam * dc
+        up = ok & (dc > 0) & (dc <= spare + table.budget)
+        down = ok & (dc < 0)
+        if not up.any() or not down.any():
             break
-        flat = int(np.argmax(gain))
-        i, k = divmod(flat, gain.shape[1])
-        if not gain[i, k] > 0:
+        def top(mask: np.ndarray) -> np.ndarray:
+            flat = np.nonzero(mask.ravel())[0]
+            if len(flat) > width:
+                flat = flat[np.argpartition(-red.ravel()[flat], width)[:width]]
+            return flat
+        u, d = top(up), top(down)
+        ur, dr = u // (K + 1), d // (K + 1)
+        tot_c = dc.ravel()[u][:, None] + dc.ravel()[d][None, :]
+        tot_v = dv.ravel()[u][:, None] + dv.ravel()[d][None, :]
+        good = (tot_c <= spare) & (ur[:, None] != dr[None, :]) & (tot_v > 0)
+        if not good.any():
             break
-        choice[i] = k
+        x, y = np.unravel_index(int(np.argmax(np.where(good, tot_v, -np.inf))), good.shape)
+        for flat in (u[x], d[y]):
+            i, o = divmod(int(flat), K + 1)
+            choice[i] = o if o < K else -1
+        choice = _improve(table, choice, rounds=4)
     return choice
 
 
@@ -313,6 +367,8 @@ def greedy(table: OptionTable, lp: LpRelaxation | None = None) -> MckpResult:
     the break option alone, so the answer is at least half the LP value."""
     lp = lp_relaxation(table) if lp is None else lp
     choice = _improve(table, lp.choice)
+    if lp.break_row >= 0:
+        choice = _swap(table, choice, lp.slope)
     _, value = _pick(table, choice)
     if lp.break_row >= 0:
         alone = np.full(table.n, -1, dtype=np.int64)
@@ -328,14 +384,43 @@ def greedy(table: OptionTable, lp: LpRelaxation | None = None) -> MckpResult:
 # -- branch and bound ------------------------------------------------------------------------------
 
 def _multipliers(lp: LpRelaxation) -> np.ndarray:
-    """Lagrange multipliers to bound with: the break slope and slopes of increments near it."""
+    """Lagrange multipliers to bound with, ascending: the break slope and the slopes of
+    increments at geometrically growing distances from it (ratio 1.25, either side), so that
+    the bound stays tight while the core grows away from the break."""
     m = len(lp.slopes)
     if m == 0 or lp.break_index >= m:
         return np.array([lp.slope])
-    pos = lp.break_index + np.array([0, -1, 1, -3, 3, -10, 10, -40, 40, -200, 200])
+    steps = np.unique(np.round(1.25 ** np.arange(int(np.log(m) / np.log(1.25)) + 2)).astype(np.int64))
+    pos = lp.break_index + np.concatenate([[0], steps, -steps])
     pos = np.clip(pos, 0, m - 1)
     lams = np.unique(np.concatenate([[lp.slope], lp.slopes[pos], [0.0]]))
     return lams[lams >= 0]
+
+
+def _envelope(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lower envelope of the lines ``a_k + b_k x`` on ``x >= 0``: (intercepts, slopes, start x)
+    of the pieces, by increasing x. ``b`` must be ascending (as :func:`_multipliers` gives)."""
+    ha: list[float] = []
+    hb: list[float] = []
+    hs: list[float] = []
+    for k in range(len(b) - 1, -1, -1):          # slopes descending
+        ak, bk = float(a[k]), float(b[k])
+        if hb and hb[-1] == bk:
+            if ak >= ha[-1]:
+                continue
+            ha.pop(), hb.pop(), hs.pop()
+        x = 0.0
+        while hb:
+            x = (ak - ha[-1]) / (hb[-1] - bk)      # the new line is lower for x > this
+            if x <= 0.0 or (len(hb) > 1 and x <= hs[-1]):
+                ha.pop(), hb.pop(), hs.pop()
+                x = 0.0
+                continue
+            break
+        ha.append(ak)
+        hb.append(bk)
+        hs.append(x if len(hb) > 1 else 0.0)
+    return np.asarray(ha), np.asarray(hb), np.asarray(hs)
 
 
 def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
@@ -344,16 +429,17 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
     rows that are not fixed (an expanding core in the spirit of Pisinger's minimal algorithm).
 
     1. LP relaxation from the upper hulls; the greedy rounding gives an incumbent ``z``.
-    2. For a few multipliers ``lam`` (the break slope and slopes next to it) the Lagrangian
-       bound ``sum_i max_o (v - lam c) + lam * budget`` holds for every solution; fixing row i
-       to option o lowers it by that option's reduced-profit shortfall. Options whose bound is
-       no better than ``z`` (within ``BOUND_SLACK``) are removed; rows left with one option
-       are fixed.
+    2. For multipliers ``lam`` (the break slope and slopes at growing distances from it) the
+       Lagrangian bound ``sum_i max_o (v - lam c) + lam * budget`` holds for every solution;
+       fixing row i to option o lowers it by that option's reduced-profit shortfall. Options
+       whose bound is no better than ``z`` (within ``BOUND_SLACK``) are removed; rows left
+       with one option are fixed.
     3. The remaining rows are added one at a time (closest to the break first) to a list of
        undominated partial solutions (bytes, value) - Nemhauser-Ullmann states, exact in
        integer bytes. Each state is bounded by ``value + min_lam (F_rest(lam) + lam *
-       (budget - bytes))`` and pruned when that is no better than ``z``; completing a state
-       with the LP choices of the rows not yet added may improve ``z``.
+       (budget - bytes))`` (the lower envelope of those lines, evaluated by binary search) and
+       pruned when that is no better than ``z``; completing a state with the LP choices of the
+       rows not yet added may improve ``z``.
 
     The reported bound is the largest bound of anything pruned (or, when stopped early, of any
     live state), never below ``z``: a valid upper bound in every case.
@@ -366,56 +452,73 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
     lp = lp_relaxation(table)
     inc = greedy(table, lp)
     z, best_choice = inc.value, inc.choice
-    stats["lp"] = lp.value
+    stats["lp"] = float(lp.value)
     stats["greedy"] = z
     tol = BOUND_SLACK * max(abs(lp.value), 1e-300)
     if lp.break_index >= len(lp.slopes) or lp.value - z <= tol:
         return MckpResult(best_choice, z, max(z, lp.value + tol), True, {**stats, "core": 0})
     B = table.budget
-    lams = _multipliers(lp)                                      # [q]
-    cst = table.cost.astype(np.float64)
-    valid = table.valid
-    # Reduced profits per option and for "none" (column K), per multiplier: [n, K+1, q]
-    red = np.where(valid[:, :, None], table.value[:, :, None] - cst[:, :, None] * lams, -np.inf)
-    red = np.concatenate([red, np.zeros((n, 1, len(lams)))], axis=1)
-    f = red.max(axis=1)                                          # [n, q]
-    F = f.sum(axis=0)                                            # [q]
+    lams = _multipliers(lp)                                      # [q], ascending
+    q = len(lams)
+    stats["multipliers"] = q
+    costs_ext = np.concatenate([table.cost, np.zeros((n, 1), np.int64)], axis=1)   # column K: none
+    vals_ext = np.concatenate([table.value, np.zeros((n, 1))], axis=1)
+    valid_ext = np.concatenate([table.valid, np.ones((n, 1), bool)], axis=1)
+    # F(lam) = sum_i max(0, max_o v - lam c) = sum of (dv - lam dc) over the hull increments
+    # steeper than lam (each row's hull is concave), from prefix sums of the sorted increments.
+    pos = np.searchsorted(-lp.slopes, -lams, side="left")
+    cum_c = np.r_[0.0, np.cumsum(lp.inc_cost.astype(np.float64))]
+    cum_v = np.r_[0.0, np.cumsum(lp.inc_value)]
+    F = cum_v[pos] - lams * cum_c[pos]
     root = F + lams * B
-    # Bound with row i fixed to option o: min over lam of (F - f_i + red_io + lam B).
-    fixed_bound = (root[None, None, :] - f[:, None, :] + red).min(axis=2)   # [n, K+1]
+    # Reduction, first with the best multiplier alone on every row (cheap), then with all
+    # multipliers on the rows that test leaves open. fixed_bound[i, o] is a valid bound on every
+    # solution with row i at option o (column K: none).
+    kb = int(np.argmin(root))
+    red0 = np.where(valid_ext, vals_ext - costs_ext * lams[kb], -np.inf)
+    fixed_bound = root[kb] - red0.max(axis=1, keepdims=True) + red0
+    open_rows = np.nonzero((valid_ext & (fixed_bound > z + tol)).sum(axis=1) > 1)[0]
+    chunk = max(1, 2_000_000 // ((K + 1) * q))
+    for lo in range(0, len(open_rows), chunk):
+        rows = open_rows[lo:lo + chunk]
+        red = np.where(valid_ext[rows][:, :, None],
+                       vals_ext[rows][:, :, None] - costs_ext[rows][:, :, None].astype(np.float64) * lams, -np.inf)
+        f_rows = red.max(axis=1)
+        fixed_bound[rows] = np.minimum(fixed_bound[rows],
+                                       (root[None, None, :] - f_rows[:, None, :] + red).min(axis=2))
     ub_root = float(root.min())
-    allowed = np.concatenate([valid, np.ones((n, 1), bool)], axis=1) & (fixed_bound > z + tol)
-    removed = np.concatenate([valid, np.ones((n, 1), bool)], axis=1) & ~allowed
+    allowed = valid_ext & (fixed_bound > z + tol)
+    removed = valid_ext & ~allowed
     discarded = float(fixed_bound[removed].max()) if removed.any() else -np.inf
     cnt = allowed.sum(axis=1)
     if (cnt == 0).any():   # some row has no option left: nothing beats z
         return MckpResult(best_choice, z, max(z, discarded), True, {**stats, "core": 0})
-    # Row i's options as (index, cost, value); index K means none.
     a = lp.choice                                                 # LP integral choice (-1: none)
+    ar = np.arange(n)
+    a_cost = np.where(a >= 0, table.cost[ar, np.maximum(a, 0)], 0)
+    a_val = np.where(a >= 0, table.value[ar, np.maximum(a, 0)], 0.0)
     a_idx = np.where(a >= 0, a, K)
-    a_cost = np.where(a >= 0, table.cost[np.arange(n), np.maximum(a, 0)], 0)
-    a_val = np.where(a >= 0, table.value[np.arange(n), np.maximum(a, 0)], 0.0)
     fixed = cnt == 1
     fix_idx = np.argmax(allowed, axis=1)
-    costs_ext = np.concatenate([table.cost, np.zeros((n, 1), np.int64)], axis=1)
-    vals_ext = np.concatenate([table.value, np.zeros((n, 1))], axis=1)
     fr = np.nonzero(fixed)[0]
     W0 = int(costs_ext[fr, fix_idx[fr]].sum())
     P0 = math.fsum(vals_ext[fr, fix_idx[fr]].tolist())
     free = np.nonzero(~fixed)[0]
-    # Bound contributions of the free rows restricted to their allowed options.
-    f_free = np.where(allowed[free][:, :, None], red[free], -np.inf).max(axis=1)   # [nf, q]
-    f_fixed = red[fr, fix_idx[fr]]                                                  # [nfix, q]
-    # Order: rows whose best alternative to the LP choice costs least in the bound first.
+    # Order: rows whose best alternative to the LP choice loses least in the bound first.
     alt = np.where(allowed[free], fixed_bound[free], -np.inf)
     alt[np.arange(len(free)), a_idx[free]] = -np.inf
     order = np.argsort(-alt.max(axis=1), kind="stable")
     free = free[order]
-    f_free = f_free[order]
+    # Bound contributions of the free rows restricted to their allowed options.
+    f_free = np.empty((len(free), q))
+    for lo in range(0, len(free), chunk):
+        rows = free[lo:lo + chunk]
+        red = np.where(allowed[rows][:, :, None],
+                       vals_ext[rows][:, :, None] - costs_ext[rows][:, :, None].astype(np.float64) * lams, -np.inf)
+        f_free[lo:lo + chunk] = red.max(axis=1)
     stats["core"] = int(len(free))
     stats["fixed"] = int(len(fr))
     F_rest = f_free.sum(axis=0)   # bound contribution of free rows not yet added
-    # Fixed rows' contribution is exact: P0 and W0 are inside every state.
     min_cost_free = np.where(allowed[free], costs_ext[free], _INT_INF).min(axis=1)
     min_rest = int(min_cost_free.sum())
     comp_c_rest = int(a_cost[free].sum())
@@ -426,6 +529,14 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
     picks: list[np.ndarray] = []
     best_at: tuple[int, int] | None = None     # (stage, state) of the incumbent's completion
     stopped = None
+    peak = 1
+
+    def bound_of(P_: np.ndarray, W_: np.ndarray, F_: np.ndarray) -> np.ndarray:
+        ea, eb, es = _envelope(F_, lams)
+        d = (B - W_).astype(np.float64)
+        k = np.searchsorted(es, d, side="right") - 1
+        return P_ + ea[k] + eb[k] * d
+
     for s, i in enumerate(free):
         if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
             stopped = "time limit"
@@ -436,27 +547,56 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
         min_rest -= int(min_cost_free[s])
         comp_c_rest -= int(a_cost[i])
         comp_v_rest -= float(a_val[i])
-        nW = (W[:, None] + c_o[None, :]).ravel()
-        nP = (P[:, None] + v_o[None, :]).ravel()
-        par = np.repeat(np.arange(len(W)), len(opts))
-        pk = np.tile(opts, len(W))
-        ok = nW + min_rest <= B
-        ub = nP + (F_rest[None, :] + lams[None, :] * (B - nW)[:, None].astype(np.float64)).min(axis=1)
-        live = ok & (ub > z + tol)
-        dead = ok & ~live
+        # Candidates option by option; states are sorted by bytes (and, undominated, by value),
+        # so the feasible ones of each option are a prefix and each block stays sorted.
+        m = len(W)
+        # All candidates at once, option-major ([options, states]): each option's row is sorted
+        # by bytes because the states are. Bounds: every multiplier directly while that is
+        # cheap, else a binary search in the lower envelope of F_rest[k] + lam[k] * (bytes left).
+        Wm = W[None, :] + c_o[:, None]
+        Pm = P[None, :] + v_o[:, None]
+        feas = Wm <= B - min_rest
+        d = (B - Wm).astype(np.float64)
+        if m * len(opts) * q <= 60_000:
+            ub = Pm + (F_rest[None, None, :] + d[:, :, None] * lams[None, None, :]).min(axis=2)
+        else:
+            env_a, env_b, env_s = _envelope(F_rest, lams)
+            # Piece index k[t, s] = #{pieces whose start <= bytes left} - 1, found from the
+            # thresholds in byte space (W sorted): cheaper than a search per candidate.
+            ne = len(env_s)
+            pos = np.searchsorted(W, (B - c_o[:, None] - env_s[None, :]).ravel(), side="right").reshape(len(opts), ne)
+            cnt = np.zeros((len(opts), m + 1), dtype=np.int64)
+            cnt[:, 0] = ne
+            np.add.at(cnt, (np.repeat(np.arange(len(opts)), ne), pos.ravel()), -1)
+            k = np.cumsum(cnt, axis=1)[:, :m] - 1
+            ub = Pm + env_a[k] + env_b[k] * d
+        live = feas & (ub > z + tol)
+        dead = feas & ~live
         if dead.any():
             discarded = max(discarded, float(ub[dead].max()))
-        nW, nP, par, pk = nW[live], nP[live], par[live], pk[live]
-        # Undominated states: sorted by bytes, value strictly above every cheaper state.
-        srt = np.lexsort((-nP, nW))
-        nW, nP, par, pk = nW[srt], nP[srt], par[srt], pk[srt]
+        sel = np.flatnonzero(live)
+        nW, nP, nI = Wm.ravel()[sel], Pm.ravel()[sel], sel
+        if len(opts) > 1 and len(nW) > 1:
+            srt = np.argsort(nW, kind="stable")   # merges the sorted rows (runs)
+            nW, nP, nI = nW[srt], nP[srt], nI[srt]
         if len(nP) > 1:
+            # Undominated: value strictly above every cheaper-or-equal state kept before; of
+            # equal-byte states only the last kept (the most valuable) survives.
             run = np.maximum.accumulate(nP)
-            keep = np.r_[True, nP[1:] > run[:-1]]
-            nW, nP, par, pk = nW[keep], nP[keep], par[keep], pk[keep]
+            keep = np.empty(len(nP), bool)
+            keep[0] = True
+            np.greater(nP[1:], run[:-1], out=keep[1:])
+            nW, nP, nI = nW[keep], nP[keep], nI[keep]
+            last = np.empty(len(nW), bool)
+            last[-1] = True
+            np.not_equal(nW[1:], nW[:-1], out=last[:-1])
+            if not last.all():
+                nW, nP, nI = nW[last], nP[last], nI[last]
+        nS, nK = nI % max(m, 1), opts[nI // max(m, 1)]
         W, P = nW, nP
-        parents.append(par)
-        picks.append(pk)
+        parents.append(nS)
+        picks.append(nK)
+        peak = max(peak, len(W))
         if len(W) == 0:
             break
         # Complete with the LP choices of the rows not yet added.
@@ -470,24 +610,20 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
             stopped = f"more than {max_states} states"
             break
     stats["stages"] = len(parents)
-    stats["final_states"] = int(len(W))
+    stats["peak_states"] = int(peak)
     if stopped is None:
         bound = max(z, discarded)
         optimal = True
     else:
-        # Live states (with the rows not yet added) still bound the rest of the search.
-        live_ub = -np.inf
-        if len(W):
-            rest = F_rest[None, :] + lams[None, :] * (B - W)[:, None].astype(np.float64)
-            live_ub = float((P + rest.min(axis=1)).max())
-        if not parents:
-            live_ub = ub_root
+        live_ub = ub_root
+        if parents and len(W):
+            live_ub = float(bound_of(P, W, F_rest).max())
         bound = max(z, discarded, live_ub)
         optimal = False
         stats["stopped"] = stopped
     if best_at is not None:
         s, k = best_at
-        choice = np.where(a >= 0, a, -1).copy()
+        choice = np.where(a >= 0, a, -1)
         choice[fr] = np.where(fix_idx[fr] < K, fix_idx[fr], -1)
         for stage in range(s, -1, -1):
             o = int(picks[stage][k])

@@ -1,0 +1,289 @@
+"""Single-slot MCKP solvers vs the MILP backends, and the rolling scheduler's speed.
+
+Families (one slot each):
+
+* ``l3gs`` - L3GS-like: :func:`l3gs_opt.synth.synth_instance` with J objects, L=4 layers,
+  180 splats per object on average (Dirichlet shares), byte costs = splats x 248 B, the budget
+  of 1 s at 11.8 Mbit/s = 1,475,000 bytes.
+* ``unc`` / ``weak`` / ``strong`` - Pisinger's MCKP classes (R = 1000, "A minimal algorithm for
+  the multiple-choice knapsack problem", EJOR 1995): uncorrelated ``w, p ~ U[1, R]``; weakly
+  correlated ``p ~ U[w - 10, w + 10]`` (>= 1); strongly correlated: per class sorted
+  ``w' ~ U[1, R]``, ``p' = w' + 10`` and cumulative sums. Budget ``0.5 * sum_j (min_l w + max_l
+  w)``. Our MCKP lets an object take no option ("at most one"), Pisinger's takes exactly one.
+
+Methods: ``bb``, ``dp`` (where its table fits), ``greedy``, ``fptas:0.1`` (where it fits) and
+the ILP on CBC, HiGHS and CP-SAT with a time limit. Plus ``rolling:bb`` on T=60 slots,
+J=200, L=4 (synth instance, Lumos5G trace at 11.8 Mbit/s), scheduling time without the LP bound.
+
+Resumable: every run is appended to ``solvers_runs.jsonl`` as it finishes (with the load
+average at that moment) and skipped next time; ``solvers.md`` and ``solvers_summary.json`` are
+rewritten from the JSONL at the end (``--report`` rewrites them only). The machine is shared
+(2 cores, other jobs running): timings are noisy, so the load average is recorded with each.
+
+    .venv/bin/python benchmarks/bench_solvers.py [--quick] [--time-limit 60] [--max-minutes M]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import machine_info  # noqa: E402
+
+from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.errors import SolveError  # noqa: E402
+from l3gs_opt.instance import Instance  # noqa: E402
+from l3gs_opt.synth import synth_instance  # noqa: E402
+
+BUDGET_L3GS = 1_475_000          # 1 s at 11.8 Mbit/s, bytes
+SPLATS_PER_OBJECT = 180
+BACKENDS = ("highs", "cbc", "cpsat")
+
+
+def l3gs_instance(J: int, seed: int) -> Instance:
+    base = synth_instance(objects=J, layers=4, slots=1, seed=seed, total_splats=SPLATS_PER_OBJECT * J)
+    return Instance(representation="layered", bandwidth=[BUDGET_L3GS], cost=base.cost, utility=base.utility,
+                    meta={"family": "l3gs", "J": J, "seed": seed})
+
+
+def pisinger_instance(kind: str, J: int, L: int, seed: int, R: int = 1000) -> Instance:
+    rng = np.random.default_rng(seed)
+    if kind == "unc":
+        w = rng.integers(1, R + 1, (J, L))
+        p = rng.integers(1, R + 1, (J, L))
+    elif kind == "weak":
+        w = rng.integers(1, R + 1, (J, L))
+        p = np.maximum(1, w + rng.integers(-10, 11, (J, L)))
+    elif kind == "strong":
+        wp = np.sort(rng.integers(1, R + 1, (J, L)), axis=1)
+        w, p = np.cumsum(wp, axis=1), np.cumsum(wp + 10, axis=1)
+    else:
+        raise ValueError(kind)
+    budget = int(0.5 * (w.min(axis=1) + w.max(axis=1)).sum())
+    return Instance(representation="separate", bandwidth=[budget], cost=w, utility=p[None].astype(np.float64),
+                    meta={"family": kind, "J": J, "L": L, "seed": seed, "R": R})
+
+
+def make_instance(family: str, J: int, L: int, seed: int) -> Instance:
+    return l3gs_instance(J, seed) if family == "l3gs" else pisinger_instance(family, J, L, seed)
+
+
+def plan(quick: bool) -> list[dict]:
+    """Runs in priority order (the ones the goals need first)."""
+    seeds = [0] if quick else [0, 1, 2, 3, 4]
+    sizes = [100, 1000] if quick else [100, 1000, 10000]
+    runs: list[dict] = []
+    fams = [("l3gs", 4), ("unc", 10), ("weak", 10), ("strong", 10)]
+    for J in sizes:
+        for fam, L in fams:
+            for seed in seeds:
+                for method in ("bb", "greedy", "dp", "fptas:0.1"):
+                    runs.append({"kind": "slot", "family": fam, "J": J, "L": L, "seed": seed, "method": method})
+    for seed in seeds:
+        runs.append({"kind": "rolling", "family": "synth", "J": 200, "L": 4, "T": 60, "seed": seed,
+                     "method": "rolling:bb"})
+    backends = ["highs"] if quick else list(BACKENDS)
+    for J in sizes:
+        for fam, L in fams:
+            if fam != "l3gs" and J == 10000 and not quick:
+                continue   # added last, below
+            for seed in seeds:
+                for b in backends:
+                    runs.append({"kind": "slot", "family": fam, "J": J, "L": L, "seed": seed, "method": "ilp",
+                                 "backend": b})
+    if not quick:
+        for fam, L in fams[1:]:
+            for seed in seeds:
+                for b in backends:
+                    runs.append({"kind": "slot", "family": fam, "J": 10000, "L": L, "seed": seed, "method": "ilp",
+                                 "backend": b})
+    return runs
+
+
+def key_of(run: dict) -> str:
+    return "|".join(f"{k}={run[k]}" for k in sorted(run))
+
+
+def execute(run: dict, time_limit: float) -> dict:
+    rec = dict(run)
+    rec["key"] = key_of(run)
+    if run["kind"] == "rolling":
+        inst = synth_instance(objects=run["J"], layers=run["L"], slots=run["T"], seed=run["seed"])
+        load = os.getloadavg()
+        cpu = time.process_time()
+        started = time.perf_counter()
+        sol = solve(inst, method="rolling:bb", options={"bound": False})
+        rec.update(wall_s=time.perf_counter() - started, cpu_s=time.process_time() - cpu, runtime_s=sol.runtime_s,
+                   objective=sol.objective,
+                   status=sol.status.value, loadavg=load)
+        return rec
+    inst = make_instance(run["family"], run["J"], run["L"], run["seed"])
+    load = os.getloadavg()
+    cpu = time.process_time()
+    started = time.perf_counter()
+    try:
+        sol = solve(inst, method=run["method"], backend=run.get("backend", "highs"), slot=0,
+                    time_limit_s=time_limit)
+    except SolveError as exc:
+        rec.update(error=str(exc), loadavg=load, wall_s=time.perf_counter() - started)
+        return rec
+    rec.update(wall_s=time.perf_counter() - started, runtime_s=sol.runtime_s, objective=sol.objective,
+               cpu_s=time.process_time() - cpu,   # this process only: not CBC's solver process
+               bound=sol.bound, gap=sol.gap, status=sol.status.value, loadavg=load,
+               backend_version=sol.backend_version, time_limit_s=time_limit if run["method"] == "ilp" else None,
+               details={k: v for k, v in sol.details.items() if isinstance(v, (int, float, str))})
+    return rec
+
+
+# -- report --------------------------------------------------------------------------------------
+
+def _med(xs: list[float]) -> float:
+    return float(np.median(xs)) if xs else math.nan
+
+
+def summarise(recs: list[dict]) -> dict:
+    """Per (family, J, L, method/backend): median and max runtime, statuses, agreement with bb."""
+    by: dict[tuple, list[dict]] = defaultdict(list)
+    for r in recs:
+        if r["kind"] != "slot":
+            continue
+        name = r["method"] if r["method"] != "ilp" else f"ilp/{r['backend']}"
+        by[(r["family"], r["J"], r["L"], name)].append(r)
+    bb = {(r["family"], r["J"], r["L"], r["seed"]): r for r in recs
+          if r["kind"] == "slot" and r["method"] == "bb" and "objective" in r}
+    rows = []
+    for (fam, J, L, name), rs in sorted(by.items()):
+        ok = [r for r in rs if "objective" in r]
+        agree, worse_than_bb, better_than_bb = 0, 0, 0
+        for r in ok:
+            ref = bb.get((fam, J, L, r["seed"]))
+            if ref is None:
+                continue
+            diff = r["objective"] - ref["objective"]
+            tol = 1e-9 * max(1.0, abs(ref["objective"]))
+            agree += abs(diff) <= tol
+            worse_than_bb += diff < -tol
+            better_than_bb += diff > tol
+        rows.append({"family": fam, "J": J, "L": L, "method": name, "runs": len(rs), "solved": len(ok),
+                     "errors": [r["error"][:80] for r in rs if "error" in r][:1],
+                     "median_s": _med([r["runtime_s"] for r in ok]),
+                     "max_s": max([r["runtime_s"] for r in ok], default=math.nan),
+                     "statuses": sorted({r["status"] for r in ok}),
+                     "same_as_bb": agree, "worse_than_bb": worse_than_bb, "better_than_bb": better_than_bb,
+                     "median_gap": _med([r["gap"] for r in ok if r.get("gap") is not None]),
+                     "median_load": _med([r["loadavg"][0] for r in rs])})
+    rolling = [r for r in recs if r["kind"] == "rolling"]
+    ratios = []
+    for fam, J, L in sorted({(r["family"], r["J"], r["L"]) for r in recs if r["kind"] == "slot"}):
+        seeds = sorted({r["seed"] for r in recs if r["kind"] == "slot" and r["family"] == fam and r["J"] == J})
+        per_seed = []
+        for s in seeds:
+            b = bb.get((fam, J, L, s))
+            milps = [r for r in recs if r["kind"] == "slot" and r["method"] == "ilp" and r["family"] == fam
+                     and r["J"] == J and r["seed"] == s and r.get("status") == "optimal"]
+            if b is None or not milps:
+                continue
+            fastest = min(milps, key=lambda r: r["runtime_s"])
+            per_seed.append({"seed": s, "bb_s": b["runtime_s"], "fastest_milp": fastest["backend"],
+                             "milp_s": fastest["runtime_s"], "ratio": fastest["runtime_s"] / b["runtime_s"],
+                             "same_optimum": abs(fastest["objective"] - b["objective"])
+                             <= 1e-9 * max(1.0, abs(b["objective"]))})
+        if per_seed:
+            ratios.append({"family": fam, "J": J, "L": L, "seeds": per_seed,
+                           "median_ratio": _med([p["ratio"] for p in per_seed]),
+                           "min_ratio": min(p["ratio"] for p in per_seed),
+                           "median_bb_s": _med([p["bb_s"] for p in per_seed])})
+    return {"rows": rows, "speedups": ratios,
+            "rolling": [{"seed": r["seed"], "runtime_s": r["runtime_s"], "loadavg": r["loadavg"]} for r in rolling]}
+
+
+def write_report(jsonl: Path, out: Path, machine: dict) -> None:
+    recs = [json.loads(line) for line in jsonl.read_text().splitlines() if line.strip()]
+    summary = summarise(recs)
+    summary["machine"] = machine
+    (out / "solvers_summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    lines = ["# Single-slot MCKP solvers vs MILP backends", "",
+             "Written by `benchmarks/bench_solvers.py` from `solvers_runs.jsonl` (every run, with the 1-minute "
+             "load average at its start). Times are `Solution.runtime_s` (model build + solve, before the "
+             "library's exact re-check), in seconds. **Shared machine**: other jobs ran on the same 2 cores, so "
+             "the times are noisy; the load average is given per row.", "",
+             f"Machine: {machine.get('cpu')}, {machine.get('cores')} cores, Python {machine.get('python')}; "
+             f"packages {machine.get('packages')}.", "",
+             "## bb vs the fastest MILP that proved optimality (per seed)", "",
+             "| family | J | L | seeds | bb median s | fastest MILP s (median) | speed-up median | min | same optimum |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for s in summary["speedups"]:
+        lines.append(f"| {s['family']} | {s['J']} | {s['L']} | {len(s['seeds'])} | {s['median_bb_s']:.4f} | "
+                     f"{_med([p['milp_s'] for p in s['seeds']]):.3f} | {s['median_ratio']:.0f}x | "
+                     f"{s['min_ratio']:.0f}x | {sum(p['same_optimum'] for p in s['seeds'])}/{len(s['seeds'])} |")
+    lines += ["", "## Every method", "",
+              "| family | J | L | method | runs | solved | median s | max s | statuses | = bb | < bb | > bb | "
+              "median gap | load | note |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in summary["rows"]:
+        note = r["errors"][0] if r["errors"] else ""
+        lines.append(f"| {r['family']} | {r['J']} | {r['L']} | {r['method']} | {r['runs']} | {r['solved']} | "
+                     f"{r['median_s']:.4f} | {r['max_s']:.4f} | {', '.join(r['statuses'])} | {r['same_as_bb']} | "
+                     f"{r['worse_than_bb']} | {r['better_than_bb']} | {r['median_gap']:.2e} | "
+                     f"{r['median_load']:.2f} | {note} |")
+    if summary["rolling"]:
+        lines += ["", "## rolling:bb, T=60 slots, J=200, L=4 (scheduling only, no LP bound)", "",
+                  "| seed | seconds | load |", "|---|---|---|"]
+        for r in summary["rolling"]:
+            lines.append(f"| {r['seed']} | {r['runtime_s']:.3f} | {r['loadavg'][0]:.2f} |")
+    (out / "solvers.md").write_text("\n".join(lines) + "\n")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="J <= 1000, one seed, HiGHS only, 10 s limit")
+    ap.add_argument("--time-limit", type=float, default=None, help="seconds per MILP (default 60, quick 10)")
+    ap.add_argument("--max-minutes", type=float, default=None, help="stop starting new runs after this long")
+    ap.add_argument("--report", action="store_true", help="only rewrite the report from the JSONL")
+    ap.add_argument("--out", default="benchmarks/results")
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    name = "solvers_quick" if args.quick else "solvers"
+    jsonl = out / f"{name}_runs.jsonl"
+    machine = machine_info()
+    if not args.report:
+        time_limit = args.time_limit or (10.0 if args.quick else 60.0)
+        done = set()
+        if jsonl.exists():
+            done = {json.loads(line)["key"] for line in jsonl.read_text().splitlines() if line.strip()}
+        todo = [r for r in plan(args.quick) if key_of(r) not in done]
+        started = time.monotonic()
+        with jsonl.open("a", encoding="utf-8") as fh:
+            for run in tqdm(todo, desc="solver runs", unit="run"):
+                if args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes:
+                    break
+                rec = execute(run, time_limit)
+                fh.write(json.dumps(rec, default=float) + "\n")
+                fh.flush()
+    if args.quick:
+        # The quick report goes to solvers_quick.md so it never overwrites the full one.
+        tmp = out / "_quick"
+        tmp.mkdir(exist_ok=True)
+        write_report(jsonl, tmp, machine)
+        (out / "solvers_quick.md").write_text((tmp / "solvers.md").read_text())
+        (out / "solvers_quick_summary.json").write_text((tmp / "solvers_summary.json").read_text())
+        for p in tmp.iterdir():
+            p.unlink()
+        tmp.rmdir()
+    else:
+        write_report(jsonl, out, machine)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,184 @@
+"""CLI subcommands for scenes and rendering: ``render``, ``scene make``, ``scene info``.
+
+Wire into the main parser with ``register(subparsers)``; each subcommand sets ``func`` to a
+handler ``handler(args) -> int``.  Bad input raises :class:`l3gs_opt.errors.L3gsError`
+subclasses (``SceneError``, ``CameraError``), which the main CLI prints as one line (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from .cameras import CameraError
+from .errors import L3gsError
+
+__all__ = ["register", "load_any_cameras", "save_image", "OutputError"]
+
+
+class OutputError(L3gsError, ValueError):
+    """An output path the CLI cannot write (e.g. an image suffix other than .png / .npy)."""
+
+
+def load_any_cameras(path) -> list:
+    """Cameras from a camera JSON, a ``transforms.json`` (has ``frames``) or a COLMAP model folder."""
+    from .cameras import load_cameras, read_blender, read_colmap
+
+    path = Path(path)
+    if path.is_dir():
+        return read_colmap(path)
+    if not path.is_file():
+        raise CameraError(f"{path}: no such file or folder")
+    try:
+        obj = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CameraError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(obj, dict) and "frames" in obj:
+        return read_blender(path)
+    return load_cameras(path)
+
+
+def save_image(image, path) -> Path:
+    """Save an [H, W, 3] render: ``.npy`` float32 as rendered, ``.png`` clipped to [0, 1] and
+    rounded to 8 bits."""
+    import numpy as np
+
+    path = Path(path)
+    a = np.asarray(image, dtype=np.float32)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        np.save(path, a)
+    elif suffix == ".png":
+        from PIL import Image
+
+        Image.fromarray((np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)).save(path)
+    else:
+        raise OutputError(f"--out: {path.name} must end in .png or .npy")
+    return path
+
+
+def _parse_rgb(text: str):
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected r,g,b") from None
+    if len(vals) != 3:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected three numbers r,g,b")
+    return vals
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    import time
+
+    from .renderer.render import render_scene
+    from .scene_io import read_ply
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".png", ".npy"):
+        raise OutputError(f"--out: {out.name} must end in .png or .npy")
+    scene = read_ply(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    cams = load_any_cameras(args.camera)
+    if not -len(cams) <= args.index < len(cams):
+        raise CameraError(f"--index: {args.index} out of range ({args.camera} holds {len(cams)} cameras)")
+    cam = cams[args.index]
+    if args.background is not None:
+        cam = cam.replace(background=args.background)
+    t0 = time.perf_counter()
+    result = render_scene(scene, cam, sh_degree=args.sh_degree)
+    dt = time.perf_counter() - t0
+    save_image(result.image.numpy(), out)
+    print(f"wrote {out}: {cam.width}x{cam.height}, {int(result.projection.visible.sum())} of "
+          f"{scene.num_splats} splats visible, {dt:.2f} s (load {os.getloadavg()[0]:.2f})")
+    return 0
+
+
+def _cmd_scene_make(args: argparse.Namespace) -> int:
+    from .camera_paths import orbit_path, walk_path
+    from .cameras import save_cameras
+    from .scene_io import write_ply
+    from .scene_make import make_scene
+
+    scene = make_scene(args.splats, objects=args.objects, sh_degree=args.sh_degree, seed=args.seed)
+    path = write_ply(scene, args.out)
+    print(f"wrote {path}: {scene!r}, {path.stat().st_size} bytes")
+    bg = args.background if args.background is not None else (0.0, 0.0, 0.0)
+    kw = dict(width=args.width, height=args.height, fov_x_deg=args.fov, background=bg)
+    if args.orbit:
+        p = save_cameras(orbit_path(args.views, **kw), args.orbit)
+        print(f"wrote {p}: orbit path, {args.views} cameras {args.width}x{args.height}")
+    if args.walk:
+        p = save_cameras(walk_path(args.views, **kw), args.walk)
+        print(f"wrote {p}: walk path, {args.views} cameras {args.width}x{args.height}")
+    return 0
+
+
+def _cmd_scene_info(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .scene_io import bytes_per_splat, read_ply
+
+    scene = read_ply(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    info = {"file": str(args.scene), "file_bytes": Path(args.scene).stat().st_size,
+            "splats": scene.num_splats, "sh_degree": scene.sh_degree,
+            "bytes_per_splat": bytes_per_splat(scene.sh_degree),
+            "objects": scene.num_objects, "layers": scene.num_layers,
+            "has_normals": scene.normals is not None}
+    if scene.num_splats:
+        info["bbox_min"] = scene.means.min(0).round(4).tolist()
+        info["bbox_max"] = scene.means.max(0).round(4).tolist()
+        info["mean_opacity"] = round(float(np.mean(1 / (1 + np.exp(-scene.opacity_logits.astype(np.float64))))), 4)
+        info["median_scale"] = round(float(np.median(np.exp(scene.log_scales.max(1).astype(np.float64)))), 5)
+    if scene.object_ids is not None:
+        ids, counts = np.unique(scene.object_ids, return_counts=True)
+        info["splats_per_object"] = {int(i): int(c) for i, c in zip(ids, counts)}
+    if scene.layers is not None:
+        ids, counts = np.unique(scene.layers, return_counts=True)
+        info["splats_per_layer"] = {int(i): int(c) for i, c in zip(ids, counts)}
+    if args.json:
+        print(json.dumps(info))
+    else:
+        for k, v in info.items():
+            print(f"{k}: {v}")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``render`` and ``scene`` (``scene make``, ``scene info``) to an argparse subparsers object."""
+    p = subparsers.add_parser("render", help="render a splat scene (.ply) from a camera to .png or .npy")
+    p.add_argument("scene", help="scene PLY file (reference 3DGS layout)")
+    p.add_argument("--camera", required=True,
+                   help="camera JSON (object or list), NeRF/Blender transforms.json, or COLMAP sparse folder")
+    p.add_argument("--out", required=True, help="output image: .png (8-bit) or .npy (float32 HxWx3, unclipped)")
+    p.add_argument("--index", type=int, default=0, help="camera index when the file holds several (default 0)")
+    p.add_argument("--background", type=_parse_rgb, default=None, help="override the background, r,g,b in [0, 1]")
+    p.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=None,
+                   help="render with SH degrees up to this only")
+    p.add_argument("--ignore-unknown-properties", action="store_true",
+                   help="skip unknown PLY vertex properties instead of failing")
+    p.set_defaults(func=_cmd_render)
+
+    s = subparsers.add_parser("scene", help="make or inspect splat scenes")
+    ssub = s.add_subparsers(dest="scene_command", required=True)
+    m = ssub.add_parser("make", help="build a procedural multi-object room scene (+ camera paths)")
+    m.add_argument("--out", required=True, help="output PLY file")
+    m.add_argument("--splats", type=int, default=100_000, help="number of splats (default 100000; 1000..2000000)")
+    m.add_argument("--objects", type=int, default=5, help="objects on the floor (1..12, default 5)")
+    m.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=3, help="SH degree (default 3)")
+    m.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    m.add_argument("--orbit", help="also write an orbit camera path (camera JSON list) here")
+    m.add_argument("--walk", help="also write a walk-through camera path (camera JSON list) here")
+    m.add_argument("--views", type=int, default=36, help="cameras per path (default 36)")
+    m.add_argument("--width", type=int, default=800, help="image width of the path cameras (default 800)")
+    m.add_argument("--height", type=int, default=600, help="image height of the path cameras (default 600)")
+    m.add_argument("--fov", type=float, default=70.0, help="horizontal field of view in degrees (default 70)")
+    m.add_argument("--background", type=_parse_rgb, default=None, help="camera background r,g,b (default black)")
+    m.set_defaults(func=_cmd_scene_make)
+    i = ssub.add_parser("info", help="print a scene's size, SH degree, objects and layers")
+    i.add_argument("scene", help="scene PLY file")
+    i.add_argument("--json", action="store_true", help="print one JSON object")
+    i.add_argument("--ignore-unknown-properties", action="store_true",
+                   help="skip unknown PLY vertex properties instead of failing")
+    i.set_defaults(func=_cmd_scene_info)

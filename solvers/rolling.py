@@ -1,0 +1,301 @@
+"""Rolling-horizon schedulers for Problems I-IV: ``rolling:SOLVER``, ``rolling-future:SOLVER``, ``mpc:H``.
+
+``rolling:SOLVER`` is the L3GS scheduler: slot by slot, solve the single-slot MCKP given what
+is held (the paper's Lemma 3) with SOLVER (``bb``, ``dp``, ``fptas:EPS``, ``greedy``, ``ilp``)
+and commit its answer. ``rolling-future:SOLVER`` values a chunk by the utility it adds over
+the rest of the horizon (the GAP form's ``dU~``) instead of at the slot alone. ``mpc:H`` solves
+Problem I/II exactly over the next H slots with the ILP and commits the first slot.
+
+How the instance's options are respected:
+
+* ``availability="next_slot"``: a chunk that arrives in slot t is valued from slot t+1 (so the
+  last slot schedules nothing: nothing it sends is ever shown).
+* ``same_slot_layers=False``: one layer per object per slot, on top of the layers held before
+  the slot.
+* ``budget="cumulative"`` (one sequential link): unspent bytes carry to the next slot. When
+  bytes are left after a slot's MCKP, the link starts the most efficient option (value per
+  byte, valued as the slot's MCKP values it) that does not fit them but fits the bytes still
+  to come; that download is *in flight*: the following slots' bytes go to it and it arrives
+  in the first slot whose cumulative bytes cover it, where the leftover bytes feed that slot's
+  MCKP. Nothing else arrives while it is in flight.
+* Separate representation: an option is one version; it replaces the held one, and its cost
+  is the whole version.
+
+Every answer carries as ``bound`` the LP relaxation of Problem I/II (:func:`~.bounds.lp_bound`),
+so its gap is certified; ``details`` has the scheduling and bound seconds apart.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from l3gs_opt.errors import SolveError
+from l3gs_opt.instance import Instance
+from l3gs_opt.presolve import shown_value
+from l3gs_opt.solution import Solution, Status, finish_solution
+
+from . import _mckp
+from ._mckp import MckpResult, OptionTable
+from .bounds import lp_bound
+
+__all__ = ["SLOT_SOLVERS", "slot_picker", "slot_gains", "run_rolling", "solve_rolling", "solve_mpc"]
+
+#: Names a rolling scheduler accepts for its per-slot solver (``fptas:EPS`` too).
+SLOT_SOLVERS = ("bb", "dp", "greedy", "ilp")
+
+Picker = Callable[[OptionTable, "float | None"], MckpResult]
+
+
+def _ilp_pick(backend: str) -> Picker:
+    """Per-slot picker that solves the option table as a one-slot ILP (``separate`` view: one
+    row per object, one version per option)."""
+
+    def pick(table: OptionTable, time_left: float | None) -> MckpResult:
+        from l3gs_opt.models import solve_ilp
+
+        if table.n == 0:
+            return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, {})
+        cost = np.where(table.valid, table.cost, table.budget + 1)
+        view = Instance(representation="separate", bandwidth=[table.budget], cost=np.maximum(cost, 1),
+                        utility=np.where(table.valid, table.value, 0.0)[None])
+        sol = solve_ilp(view, backend=backend, slot=0, time_limit_s=time_left)
+        choice = np.full(table.n, -1, dtype=np.int64)
+        for i, k, _ in sol.arrivals:
+            choice[i] = k
+        value = float(table.value[np.arange(table.n)[choice >= 0], choice[choice >= 0]].sum())
+        return MckpResult(choice, value, sol.bound if sol.bound is not None else np.inf,
+                          sol.status is Status.OPTIMAL, {})
+
+    return pick
+
+
+def slot_picker(name: str, *, backend: str = "highs") -> Picker:
+    """The per-slot solver behind ``rolling:NAME``: ``bb``, ``dp``, ``greedy``, ``ilp`` or
+    ``fptas:EPS``. Raises :class:`SolveError` for anything else."""
+    if name == "bb":
+        return lambda table, left: _mckp.branch_and_bound(table, time_limit_s=left)
+    if name == "dp":
+        return lambda table, left: _mckp.dynamic_programme(table)
+    if name == "greedy":
+        return lambda table, left: _mckp.greedy(table)
+    if name == "ilp":
+        return _ilp_pick(backend)
+    if name.startswith("fptas:"):
+        eps = parse_eps(name)
+        return lambda table, left: _mckp.fptas(table, eps)
+    raise SolveError(f"per-slot solver {name!r} is not one of bb, dp, fptas:EPS, greedy, ilp")
+
+
+def parse_eps(name: str) -> float:
+    """EPS of ``fptas:EPS`` as a float in (0, 1)."""
+    text = name.split(":", 1)[1]
+    try:
+        eps = float(text)
+    except ValueError:
+        raise SolveError(f"method {name!r}: EPS = {text!r} must be a number in (0, 1)") from None
+    if not 0 < eps < 1:
+        raise SolveError(f"method {name!r}: EPS = {eps!r} must be in (0, 1)")
+    return eps
+
+
+def slot_gains(instance: Instance, slot: int, held: np.ndarray, *, future: bool) -> np.ndarray:
+    """``[J, L]`` value of each unheld chunk when it arrives in ``slot``, given ``held``.
+
+    Myopic (``future=False``): its gain at the first slot it is shown in (``slot``, or
+    ``slot + 1`` under next-slot availability); ``future=True``: summed from that slot to the
+    end of the horizon. Layered: per-layer utility; separate: the version's utility above the
+    best held version, clipped at 0, per slot. Held chunks: 0.
+    """
+    inst = instance
+    first = slot + (1 if inst.options.availability == "next_slot" else 0)
+    if first >= inst.T:
+        return np.zeros((inst.J, inst.L))
+    utility = inst.utility[first:] if future else inst.utility[first:first + 1]
+    if inst.layered:
+        return np.where(held[None], 0.0, utility).sum(axis=0)
+    base = np.where(held[None], utility, 0.0).max(axis=2, initial=0.0)
+    return np.where(held[None], 0.0, np.clip(utility - base[:, :, None], 0.0, None)).sum(axis=0)
+
+
+def _arrivals(table: OptionTable, choice: np.ndarray, held: np.ndarray, slot: int, *,
+              layered: bool) -> list[tuple[int, int, int]]:
+    out: list[tuple[int, int, int]] = []
+    levels = held.sum(axis=1)
+    for i in np.nonzero(choice >= 0)[0]:
+        j = int(table.rows[i])
+        top = int(table.level[i, choice[i]])
+        if layered:
+            out.extend((j, l, slot) for l in range(int(levels[j]), top + 1))
+        else:
+            out.append((j, top, slot))
+    return out
+
+
+def _bound(instance: Instance, with_bound: bool) -> tuple[float | None, float]:
+    if not with_bound:
+        return None, 0.0
+    return lp_bound(instance)
+
+
+def run_rolling(instance: Instance, pick: Picker, *, method: str, future: bool = False,
+                time_limit_s: float | None = None, with_bound: bool = True) -> Solution:
+    """Schedule slot by slot with ``pick`` solving each slot's option table (see module doc)."""
+    inst = instance
+    started = time.perf_counter()
+    T, J = inst.T, inst.J
+    layered = inst.layered
+    strict = not inst.options.same_slot_layers
+    cumulative = inst.options.budget == "cumulative"
+    bandwidth = [int(b) for b in inst.bandwidth]
+    held = inst.held.copy()
+    arrivals: list[tuple[int, int, int]] = []
+    carry = 0
+    flight: tuple[list[tuple[int, int]], int] | None = None   # (chunks, bytes still to come)
+    all_optimal = True
+    stopped = ""
+    in_flight_count = 0
+    for t in range(T):
+        left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
+        if left is not None and left <= 0:
+            stopped = f"time limit reached before slot {t}; later slots send nothing"
+            break
+        avail = carry + bandwidth[t] if cumulative else bandwidth[t]
+        locked = np.zeros(J, dtype=bool)
+        if flight is not None:
+            chunks, rest = flight
+            if avail < rest:
+                flight = (chunks, rest - avail)
+                carry = 0
+                continue
+            avail -= rest
+            for j, l in chunks:
+                arrivals.append((j, l, t))
+                held[j, l] = True
+                locked[j] = True
+            flight = None
+        gain = slot_gains(inst, t, held, future=future)
+        if strict and locked.any():
+            gain[locked] = 0.0   # a layer that arrived this slot takes no layer on top of it now
+        table = _mckp.build_table(layered=layered, cost=inst.cost, gain=gain, held=held, budget=avail,
+                                  same_slot_layers=not strict)
+        result = pick(table, left)
+        all_optimal &= bool(result.optimal)
+        chosen = _arrivals(table, result.choice, held, t, layered=layered)
+        for j, l, _ in chosen:
+            held[j, l] = True
+            avail -= int(inst.cost[j, l])
+            locked[j] = True
+        arrivals.extend(chosen)
+        if not cumulative:
+            continue
+        carry = avail
+        to_come = sum(bandwidth[t + 1:])
+        if carry <= 0 or to_come <= 0:
+            continue
+        # Start an in-flight download with the spare bytes: the most efficient option that does
+        # not fit them but fits the bytes still to come.
+        gain = slot_gains(inst, t, held, future=future)
+        wide = _mckp.build_table(layered=layered, cost=inst.cost, gain=gain, held=held, budget=carry + to_come,
+                                 same_slot_layers=not strict)
+        if wide.n == 0:
+            continue
+        cand = wide.valid & (wide.cost > carry)
+        if not cand.any():
+            continue
+        eff = np.where(cand, wide.value / np.maximum(wide.cost, 1), -np.inf)
+        i, k = np.unravel_index(int(np.argmax(eff)), eff.shape)
+        j = int(wide.rows[i])
+        top = int(wide.level[i, k])
+        chunks = [(j, l) for l in range(int(held[j].sum()), top + 1)] if layered else [(j, top)]
+        flight = (chunks, int(wide.cost[i, k]) - carry)
+        carry = 0
+        in_flight_count += 1
+    schedule_s = time.perf_counter() - started
+    bound, bound_s = _bound(inst, with_bound)
+    status = Status.TIME_LIMIT if stopped else Status.FEASIBLE
+    if T == 1 and all_optimal and not stopped and inst.options.availability == "same_slot":
+        # One slot: the rolling answer is the exact single-slot optimum, i.e. Problem I/II's.
+        status = Status.OPTIMAL
+        bound = result.bound + shown_value(inst)[1]
+    details: dict[str, Any] = {"schedule_s": schedule_s, "bound_s": bound_s,
+                               "bound": "LP relaxation of Problem I/II" if with_bound else None}
+    if cumulative:
+        details["in_flight_downloads"] = in_flight_count
+    message = stopped or (f"{method}: rolling heuristic; bound is the LP relaxation" if status is not Status.OPTIMAL
+                          else "")
+    return finish_solution(inst, arrivals, problem=inst.problem, method=method, status=status, bound=bound,
+                           runtime_s=time.perf_counter() - started, message=message, details=details)
+
+
+def solve_rolling(instance: Instance, solver: str, *, future: bool = False, slot: int | None = None,
+                  time_limit_s: float | None = None, backend: str = "highs", with_bound: bool = True,
+                  **_ignored: Any) -> Solution:
+    """``rolling:SOLVER`` (``future=False``) or ``rolling-future:SOLVER`` (``future=True``)."""
+    name = f"{'rolling-future' if future else 'rolling'}:{solver}"
+    if slot is not None:
+        raise SolveError(f"method {name!r} schedules the whole horizon: slot does not apply "
+                         f"(use method {solver!r} for one slot)")
+    pick = slot_picker(solver, backend=backend)
+    return run_rolling(instance, pick, method=name, future=future, time_limit_s=time_limit_s,
+                       with_bound=with_bound)
+
+
+def solve_mpc(instance: Instance, horizon: int, *, slot: int | None = None, time_limit_s: float | None = None,
+              backend: str = "highs", with_bound: bool = True, **_ignored: Any) -> Solution:
+    """``mpc:H``: each slot, solve Problem I/II exactly over the next ``horizon`` slots (ILP on
+    ``backend``) given what is held, commit the first slot's arrivals, roll on.
+
+    Under the cumulative budget the bytes not yet spent are added to the window's first slot,
+    so the window's cumulative budgets are the real ones. Each window gets an equal share of
+    the time left.
+    """
+    from l3gs_opt.models import solve_ilp
+
+    name = f"mpc:{horizon}"
+    if slot is not None:
+        raise SolveError(f"method {name!r} schedules the whole horizon: slot does not apply")
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+        raise SolveError(f"method {name!r}: H = {horizon!r} must be a positive integer (slots)")
+    inst = instance
+    started = time.perf_counter()
+    cumulative = inst.options.budget == "cumulative"
+    bandwidth = np.asarray(inst.bandwidth, dtype=np.int64)
+    held = inst.held.copy()
+    arrivals: list[tuple[int, int, int]] = []
+    carry = 0
+    stopped = ""
+    window_limits = 0
+    for t in range(inst.T):
+        left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
+        if left is not None and left <= 0:
+            stopped = f"time limit reached before slot {t}; later slots send nothing"
+            break
+        end = min(inst.T, t + int(horizon))
+        bw = bandwidth[t:end].copy()
+        if cumulative:
+            bw[0] += carry
+        window = Instance(representation=inst.representation, bandwidth=bw, cost=inst.cost,
+                          utility=inst.utility[t:end], held=held, options=inst.options)
+        share = None if left is None else left / (inst.T - t)
+        sol = solve_ilp(window, backend=backend, time_limit_s=share)
+        window_limits += sol.status is Status.TIME_LIMIT
+        first = [(j, l, t) for j, l, tt in sol.arrivals if tt == 0]
+        spent = 0
+        for j, l, _ in first:
+            held[j, l] = True
+            spent += int(inst.cost[j, l])
+        arrivals.extend(first)
+        if cumulative:
+            carry = int(bw[0]) - spent
+    schedule_s = time.perf_counter() - started
+    bound, bound_s = _bound(inst, with_bound)
+    details = {"schedule_s": schedule_s, "bound_s": bound_s, "windows_at_time_limit": int(window_limits),
+               "backend": backend}
+    return finish_solution(inst, arrivals, problem=inst.problem, method=name,
+                           status=Status.TIME_LIMIT if stopped else Status.FEASIBLE, bound=bound,
+                           runtime_s=time.perf_counter() - started,
+                           message=stopped or f"{name}: receding horizon; bound is the LP relaxation",
+                           details=details)
