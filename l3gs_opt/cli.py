@@ -1,4 +1,4 @@
-"""The ``l3gs-opt`` command line: thin subcommands over the library API.
+"""The l3gs-opt command line: thin subcommands over the library API.
 
 Every error the library raises on purpose (bad instance, bad option, unreadable file) is printed
 as one line on stderr with exit code 2; argparse's own usage errors also exit 2.
@@ -254,6 +254,10 @@ def build_parser() -> argparse.ArgumentParser:
     pb.add_argument("--method", default="harmonic", choices=["harmonic", "last", "oracle"])
     pb.add_argument("--json", action="store_true")
     pb.set_defaults(func=_cmd_predict)
+
+    from .cli_scene import register as register_scene_commands
+
+    register_scene_commands(sub)  # render, scene make, scene info (the renderer's subcommands)
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")
