@@ -59,7 +59,7 @@ def main() -> int:
 def write_markdown(jsonl: Path, md: Path) -> None:
     recs = [json.loads(line) for line in jsonl.read_text().splitlines()]
     m = recs[0]["machine"]
-    lines = [f"# ILP backends at the paper's scale (J=20, L=4, T=60)", "",
+    lines = ["# ILP backends at the paper's scale (J=20, L=4, T=60)", "",
              f"Instance: `synth_instance({', '.join(f'{k}={v!r}' for k, v in SETTINGS.items())})`: trace "
              f"{recs[0]['instance_meta']['trace']} scaled x{recs[0]['instance_meta']['scale_factor']:.5f} to a mean of "
              f"11.8 Mbit/s, window 0..60 s. Time limit {recs[0]['time_limit_s']} s per solve.", "",

@@ -29,7 +29,7 @@ from .api import solve
 from .errors import L3gsError, SolveError
 from .evaluate import evaluate_objective, feasibility_violations
 from .instance import Instance
-from .solution import GAP_TOL, Solution, Status
+from .solution import Solution, Status
 from .suites import InstanceSpec, split_method
 
 __all__ = ["RECORD_SCHEMA", "BenchTask", "run_bench", "read_records", "run_task", "AGREE_TOL"]

@@ -21,7 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .errors import SolveError
-from .instance import Instance, Options
+from .instance import Instance
 from .synth import synth_instance
 from .traces import bundled_traces, mbps_to_bytes
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from l3gs_opt import BackendUnavailableError, Options, SolveError, Status, instance_from_dict, is_feasible, solve
+from l3gs_opt import BackendUnavailableError, SolveError, Status, instance_from_dict, is_feasible, solve
 from l3gs_opt.models import Backend, build_model, installed_backends, solve_model
 from l3gs_opt.synth import synth_instance
 

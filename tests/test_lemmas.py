@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from l3gs_opt import Instance, Options, Status, solve
+from l3gs_opt import Options, Status, solve
 from l3gs_opt.synth import synth_instance
 
 from core_helpers import ALL_OPTIONS, option_id, random_instance
