@@ -7,7 +7,8 @@ render_gaussians, render_scene, scene_tensors, RenderOutput
 project_gaussians, covariances_from_params, quat_to_rotmat, Projection
     The projection step on its own (reuse one projection for rendering and utilities).
 rasterize, Raster
-    Compositing of already projected splats.
+    Compositing of already projected splats: a vectorised torch autograd path and, when numba is
+    installed (chosen automatically), compiled per-pixel forward and backward kernels.
 eval_sh, sh_to_color
     Spherical-harmonic colour.
 psnr, ssim
@@ -17,6 +18,7 @@ Scene and camera I/O live in :mod:`l3gs_opt.scene_io`, :mod:`l3gs_opt.cameras`,
 :mod:`l3gs_opt.scene_make` and :mod:`l3gs_opt.camera_paths`.
 """
 
+from ._kernels import HAVE_NUMBA
 from .metrics import MetricError, psnr, ssim
 from .projection import (NEAR_PLANE, TILE_SIZE, Projection, covariances_from_params, project_gaussians,
                          quat_to_rotmat)
@@ -27,4 +29,4 @@ from .sh import eval_sh, sh_to_color
 __all__ = ["render_gaussians", "render_scene", "scene_tensors", "RenderOutput",
            "project_gaussians", "covariances_from_params", "quat_to_rotmat", "Projection",
            "NEAR_PLANE", "TILE_SIZE", "rasterize", "Raster", "eval_sh", "sh_to_color",
-           "psnr", "ssim", "MetricError"]
+           "psnr", "ssim", "MetricError", "HAVE_NUMBA"]

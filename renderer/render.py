@@ -46,7 +46,7 @@ class RenderOutput(NamedTuple):
 def render_gaussians(means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor,
                      opacity_logits: torch.Tensor, sh: torch.Tensor, camera, *,
                      background=None, sh_degree: Optional[int] = None,
-                     near: float = NEAR_PLANE) -> RenderOutput:
+                     near: float = NEAR_PLANE, backend: str = "auto") -> RenderOutput:
     """Render splats seen by ``camera`` (differentiable).
 
     Parameters
@@ -68,6 +68,9 @@ def render_gaussians(means: torch.Tensor, log_scales: torch.Tensor, quats: torch
         Use only degrees ``<= sh_degree`` (default: all of ``K``).
     near : float, keyword-only
         Near plane (camera z).
+    backend : {"auto", "torch", "numba"}, keyword-only
+        Compositing backend (see :func:`rasterize`): ``"auto"`` uses the compiled numba kernel
+        when no gradient is recorded and numba is installed, the torch autograd path otherwise.
 
     Returns
     -------
@@ -87,7 +90,7 @@ def render_gaussians(means: torch.Tensor, log_scales: torch.Tensor, quats: torch
     bg = torch.tensor(np.array(camera.background if background is None else background, dtype=np.float64),
                       dtype=dtype, device=dev)
     ras = rasterize(proj.means2d, proj.conics, torch.sigmoid(opacity_logits), colors, proj.depths,
-                    proj.radii, camera.width, camera.height, bg)
+                    proj.radii, camera.width, camera.height, bg, backend=backend)
     return RenderOutput(image=ras.image, alpha=ras.alpha, depth=ras.depth, weights=ras.weights,
                         projection=proj)
 
@@ -102,8 +105,9 @@ def scene_tensors(scene, dtype=torch.float32, requires_grad: bool = False) -> di
     return out
 
 
-def render_scene(scene, camera, *, background=None, sh_degree: Optional[int] = None) -> RenderOutput:
+def render_scene(scene, camera, *, background=None, sh_degree: Optional[int] = None,
+                 backend: str = "auto") -> RenderOutput:
     """Render a :class:`SplatScene` in float32 without gradients (see :func:`render_gaussians`)."""
     with torch.no_grad():
         return render_gaussians(**scene_tensors(scene), camera=camera, background=background,
-                                sh_degree=sh_degree)
+                                sh_degree=sh_degree, backend=backend)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "eval_sh", "sh_to_color", "rgb_to_sh_dc"]
+__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "eval_sh", "sh_basis", "sh_to_color", "rgb_to_sh_dc"]
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -39,26 +39,37 @@ def eval_sh(degree: int, sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
         raise ValueError(f"degree: {degree} must be 0, 1, 2 or 3")
     if sh.shape[-2] < (degree + 1) ** 2:
         raise ValueError(f"sh: {sh.shape[-2]} coefficients cannot hold degree {degree}")
-    res = SH_C0 * sh[..., 0, :]
-    if degree < 1:
-        return res
-    x, y, z = (dirs[..., i:i + 1] for i in range(3))
-    res = res - SH_C1 * y * sh[..., 1, :] + SH_C1 * z * sh[..., 2, :] - SH_C1 * x * sh[..., 3, :]
-    if degree < 2:
-        return res
-    xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-    res = (res + SH_C2[0] * xy * sh[..., 4, :] + SH_C2[1] * yz * sh[..., 5, :]
-           + SH_C2[2] * (2.0 * zz - xx - yy) * sh[..., 6, :]
-           + SH_C2[3] * xz * sh[..., 7, :] + SH_C2[4] * (xx - yy) * sh[..., 8, :])
-    if degree < 3:
-        return res
-    return (res + SH_C3[0] * y * (3.0 * xx - yy) * sh[..., 9, :]
-            + SH_C3[1] * xy * z * sh[..., 10, :]
-            + SH_C3[2] * y * (4.0 * zz - xx - yy) * sh[..., 11, :]
-            + SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[..., 12, :]
-            + SH_C3[4] * x * (4.0 * zz - xx - yy) * sh[..., 13, :]
-            + SH_C3[5] * z * (xx - yy) * sh[..., 14, :]
-            + SH_C3[6] * x * (xx - 3.0 * yy) * sh[..., 15, :])
+    k = (degree + 1) ** 2
+    basis = sh_basis(degree, dirs)  # [..., K]
+    return torch.einsum("...k,...kc->...c", basis, sh[..., :k, :])
+
+
+def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
+    """The real SH basis values (reference 3DGS signs and order) of unit directions.
+
+    Parameters
+    ----------
+    degree : int
+        0..3.
+    dirs : Tensor, shape [..., 3]
+
+    Returns
+    -------
+    Tensor, shape [..., (degree + 1) ** 2]
+    """
+    x, y, z = dirs[..., 0], dirs[..., 1], dirs[..., 2]
+    out = [torch.full_like(x, SH_C0)]
+    if degree >= 1:
+        out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if degree >= 2:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        out += [SH_C2[0] * xy, SH_C2[1] * yz, SH_C2[2] * (2.0 * zz - xx - yy), SH_C2[3] * xz,
+                SH_C2[4] * (xx - yy)]
+    if degree >= 3:
+        out += [SH_C3[0] * y * (3.0 * xx - yy), SH_C3[1] * xy * z, SH_C3[2] * y * (4.0 * zz - xx - yy),
+                SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), SH_C3[4] * x * (4.0 * zz - xx - yy),
+                SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3.0 * yy)]
+    return torch.stack(out, dim=-1)
 
 
 def sh_to_color(sh: torch.Tensor, means: torch.Tensor, camera_center: torch.Tensor,

@@ -61,6 +61,10 @@ MAX_BB_STATES = 4_000_000
 
 _INT_INF = np.iinfo(np.int64).max
 
+#: Below this many (state, option, multiplier) triples a stage bounds its candidates with every
+#: multiplier directly; above it, by binary search in the lower envelope (same value, less work).
+_DIRECT_BOUND_CELLS = 60_000
+
 
 @dataclass(frozen=True, eq=False)
 class OptionTable:
@@ -155,9 +159,11 @@ def build_table(*, layered: bool, cost: np.ndarray, gain: np.ndarray, held: np.n
         prev = np.maximum.accumulate(vals, axis=1)
         prev = np.concatenate([np.full((J, 1), -np.inf), prev[:, :-1]], axis=1)
         ok &= ovalue > prev
-    # Left-pack the valid entries and drop rows with none.
-    pack = np.argsort(~ok, axis=1, kind="stable")
-    ocost, ovalue, ok, lev = (np.take_along_axis(np.asarray(a), pack, axis=1) for a in (ocost, ovalue, ok, lev))
+    # Left-pack the valid entries (unless they already are) and drop rows with none.
+    if L > 1 and (ok[:, 1:] & ~ok[:, :-1]).any():
+        pack = np.argsort(~ok, axis=1, kind="stable")
+        ocost, ovalue, ok, lev = (np.take_along_axis(np.asarray(a), pack, axis=1) for a in (ocost, ovalue, ok, lev))
+    lev = np.asarray(lev)
     counts = ok.sum(axis=1)
     K = int(counts.max()) if J else 0
     rows = np.nonzero(counts > 0)[0]
@@ -241,13 +247,10 @@ def hull_increments(table: OptionTable) -> tuple[np.ndarray, np.ndarray, np.ndar
     slope = dv / dc
     # Within a row slopes decrease; force it in float (a running minimum per row) so that a
     # row's increments are always taken as a prefix.
-    order_rk = np.lexsort((kk, rr))
-    s_fixed = slope[order_rk]
-    starts = np.r_[True, rr[order_rk][1:] != rr[order_rk][:-1]]
+    # (np.nonzero lists the increments by row, then option: already in row order.)
+    starts = np.r_[True, rr[1:] != rr[:-1]]
     for _ in range(K - 1):  # K (levels per row) is small
-        s_fixed = np.where(starts, s_fixed, np.minimum(s_fixed, np.r_[np.inf, s_fixed[:-1]]))
-    slope = np.empty_like(slope)
-    slope[order_rk] = s_fixed
+        slope = np.where(starts, slope, np.minimum(slope, np.r_[np.inf, slope[:-1]]))
     return rr, kk, dc, dv, slope
 
 
@@ -257,13 +260,22 @@ def lp_relaxation(table: OptionTable) -> LpRelaxation:
     if n == 0:
         return LpRelaxation(0.0, 0.0, np.zeros(0, np.int64), np.zeros(0), 0, -1, -1)
     rr, kk, dc, dv, slope = hull_increments(table)
-    order = np.lexsort((kk, -slope))
+    # Increments come in (row, option) order, so a stable sort keeps a row's ties in order; the
+    # (much faster) default sort is used when no two slopes are equal.
+    order = np.argsort(-slope)
+    if len(order) > 1 and (np.diff(slope[order]) == 0).any():
+        order = np.argsort(-slope, kind="stable")
     cum = np.cumsum(dc[order])
     b = int(np.searchsorted(cum, table.budget, side="right"))  # first increment that does not fit
     m = len(order)
     taken = order[:b]
+    # A row's taken increments are a prefix of its increments (listed by row, then option):
+    # the choice is the option of the last one taken.
+    mark = np.zeros(len(rr), dtype=bool)
+    mark[taken] = True
+    last = mark & ~np.r_[mark[1:] & (rr[1:] == rr[:-1]), False]
     choice = np.full(n, -1, dtype=np.int64)
-    np.maximum.at(choice, rr[taken], kk[taken])
+    choice[rr[last]] = kk[last]
     value = float(dv[taken].sum())
     used = int(cum[b - 1]) if b > 0 else 0
     if b < m:
@@ -423,44 +435,27 @@ def _envelope(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return np.asarray(ha), np.asarray(hb), np.asarray(hs)
 
 
-def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
-                     max_states: int = MAX_BB_STATES) -> MckpResult:
-    """Exact MCKP: LP bound, Lagrangian reduction, then a bounded dynamic programme over the
-    rows that are not fixed (an expanding core in the spirit of Pisinger's minimal algorithm).
+@dataclass(frozen=True, eq=False)
+class _Reduced:
+    lams: np.ndarray          # [q] multipliers, ascending
+    root: np.ndarray          # [q] Lagrangian bound per multiplier
+    fixed_bound: np.ndarray   # [n, K+1] bound with row i at option o (column K: none)
+    allowed: np.ndarray       # [n, K+1] options that may still beat z
+    discarded: float          # largest bound of a removed option (-inf: none)
+    costs_ext: np.ndarray     # [n, K+1]
+    vals_ext: np.ndarray      # [n, K+1]
 
-    1. LP relaxation from the upper hulls; the greedy rounding gives an incumbent ``z``.
-    2. For multipliers ``lam`` (the break slope and slopes at growing distances from it) the
-       Lagrangian bound ``sum_i max_o (v - lam c) + lam * budget`` holds for every solution;
-       fixing row i to option o lowers it by that option's reduced-profit shortfall. Options
-       whose bound is no better than ``z`` (within ``BOUND_SLACK``) are removed; rows left
-       with one option are fixed.
-    3. The remaining rows are added one at a time (closest to the break first) to a list of
-       undominated partial solutions (bytes, value) - Nemhauser-Ullmann states, exact in
-       integer bytes. Each state is bounded by ``value + min_lam (F_rest(lam) + lam *
-       (budget - bytes))`` (the lower envelope of those lines, evaluated by binary search) and
-       pruned when that is no better than ``z``; completing a state with the LP choices of the
-       rows not yet added may improve ``z``.
 
-    The reported bound is the largest bound of anything pruned (or, when stopped early, of any
-    live state), never below ``z``: a valid upper bound in every case.
+def _reduce(table: OptionTable, lp: LpRelaxation, z: float, tol: float) -> _Reduced:
+    """Lagrangian reduction: drop every option no solution better than ``z + tol`` can use.
+
+    For any multiplier ``lam >= 0``, ``sum_i max_o (v - lam c) + lam * budget`` bounds every
+    solution; fixing row i to option o lowers that by the option's reduced-profit shortfall.
     """
-    started = time.perf_counter()
     n, K = table.cost.shape
-    stats: dict = {"rows": n}
-    if n == 0:
-        return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, stats)
-    lp = lp_relaxation(table)
-    inc = greedy(table, lp)
-    z, best_choice = inc.value, inc.choice
-    stats["lp"] = float(lp.value)
-    stats["greedy"] = z
-    tol = BOUND_SLACK * max(abs(lp.value), 1e-300)
-    if lp.break_index >= len(lp.slopes) or lp.value - z <= tol:
-        return MckpResult(best_choice, z, max(z, lp.value + tol), True, {**stats, "core": 0})
     B = table.budget
     lams = _multipliers(lp)                                      # [q], ascending
     q = len(lams)
-    stats["multipliers"] = q
     costs_ext = np.concatenate([table.cost, np.zeros((n, 1), np.int64)], axis=1)   # column K: none
     vals_ext = np.concatenate([table.value, np.zeros((n, 1))], axis=1)
     valid_ext = np.concatenate([table.valid, np.ones((n, 1), bool)], axis=1)
@@ -486,10 +481,56 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
         f_rows = red.max(axis=1)
         fixed_bound[rows] = np.minimum(fixed_bound[rows],
                                        (root[None, None, :] - f_rows[:, None, :] + red).min(axis=2))
-    ub_root = float(root.min())
     allowed = valid_ext & (fixed_bound > z + tol)
     removed = valid_ext & ~allowed
     discarded = float(fixed_bound[removed].max()) if removed.any() else -np.inf
+    return _Reduced(lams=lams, root=root, fixed_bound=fixed_bound, allowed=allowed, discarded=discarded,
+                    costs_ext=costs_ext, vals_ext=vals_ext)
+
+
+def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
+                     max_states: int = MAX_BB_STATES) -> MckpResult:
+    """Exact MCKP: LP bound, Lagrangian reduction, then a bounded dynamic programme over the
+    rows that are not fixed (an expanding core in the spirit of Pisinger's minimal algorithm).
+
+    1. LP relaxation from the upper hulls; the greedy rounding gives an incumbent ``z``.
+    2. For multipliers ``lam`` (the break slope and slopes at growing distances from it) the
+       Lagrangian bound ``sum_i max_o (v - lam c) + lam * budget`` holds for every solution;
+       fixing row i to option o lowers it by that option's reduced-profit shortfall. Options
+       whose bound is no better than ``z`` (within ``BOUND_SLACK``) are removed; rows left
+       with one option are fixed.
+    3. The remaining rows are added one at a time (closest to the break first) to a list of
+       undominated partial solutions (bytes, value) - Nemhauser-Ullmann states, exact in
+       integer bytes. Each state is bounded by ``value + min_lam (F_rest(lam) + lam *
+       (budget - bytes))`` (the lower envelope of those lines) and pruned when that is no
+       better than ``z``; completing a state with the LP choices of the rows not yet added may
+       improve ``z``, and each row's options are checked against the current ``z`` again
+       before it is added.
+
+    The reported bound is the largest bound of anything pruned (or, when stopped early, of any
+    live state), never below ``z``: a valid upper bound in every case.
+    """
+    started = time.perf_counter()
+    n, K = table.cost.shape
+    stats: dict = {"rows": n}
+    if n == 0:
+        return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, stats)
+    lp = lp_relaxation(table)
+    inc = greedy(table, lp)
+    z, best_choice = inc.value, inc.choice
+    stats["lp"] = float(lp.value)
+    stats["greedy"] = z
+    tol = BOUND_SLACK * max(abs(lp.value), 1e-300)
+    if lp.break_index >= len(lp.slopes) or lp.value - z <= tol:
+        return MckpResult(best_choice, z, max(z, lp.value + tol), True, {**stats, "core": 0})
+    B = table.budget
+    red_ = _reduce(table, lp, z, tol)
+    lams, root, fixed_bound, allowed, discarded = red_.lams, red_.root, red_.fixed_bound, red_.allowed, red_.discarded
+    costs_ext, vals_ext = red_.costs_ext, red_.vals_ext
+    q = len(lams)
+    stats["multipliers"] = q
+    ub_root = float(root.min())
+    chunk = max(1, 2_000_000 // ((K + 1) * q))
     cnt = allowed.sum(axis=1)
     if (cnt == 0).any():   # some row has no option left: nothing beats z
         return MckpResult(best_choice, z, max(z, discarded), True, {**stats, "core": 0})
@@ -528,6 +569,7 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
     parents: list[np.ndarray] = []
     picks: list[np.ndarray] = []
     best_at: tuple[int, int] | None = None     # (stage, state) of the incumbent's completion
+    z_root = z
     stopped = None
     peak = 1
 
@@ -541,15 +583,31 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
         if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
             stopped = "time limit"
             break
-        opts = np.nonzero(allowed[i])[0]
+        # Options of this row that may still beat the incumbent (z only grows).
+        if z > z_root:
+            still = allowed[i] & (fixed_bound[i] > z + tol)
+            gone = allowed[i] & ~still
+            if gone.any():
+                discarded = max(discarded, float(fixed_bound[i][gone].max()))
+            opts = np.nonzero(still)[0]
+        else:
+            opts = np.nonzero(allowed[i])[0]
         c_o, v_o = costs_ext[i, opts], vals_ext[i, opts]
         F_rest = F_rest - f_free[s]
         min_rest -= int(min_cost_free[s])
         comp_c_rest -= int(a_cost[i])
         comp_v_rest -= float(a_val[i])
-        # Candidates option by option; states are sorted by bytes (and, undominated, by value),
-        # so the feasible ones of each option are a prefix and each block stays sorted.
         m = len(W)
+        if len(opts) == 1 and m:
+            # The incumbent has fixed this row: shift every state by its one option.
+            c1, v1 = int(c_o[0]), float(v_o[0])
+            keep_idx = np.nonzero(W + c1 <= B - min_rest)[0]
+            W, P = W[keep_idx] + c1, P[keep_idx] + v1
+            parents.append(keep_idx.astype(np.int32))
+            picks.append(np.full(len(W), opts[0], dtype=_choice_dtype(K + 1)))
+            if len(W) == 0:
+                break
+            continue
         # All candidates at once, option-major ([options, states]): each option's row is sorted
         # by bytes because the states are. Bounds: every multiplier directly while that is
         # cheap, else a binary search in the lower envelope of F_rest[k] + lam[k] * (bytes left).
@@ -557,7 +615,7 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
         Pm = P[None, :] + v_o[:, None]
         feas = Wm <= B - min_rest
         d = (B - Wm).astype(np.float64)
-        if m * len(opts) * q <= 60_000:
+        if m * len(opts) * q <= _DIRECT_BOUND_CELLS:
             ub = Pm + (F_rest[None, None, :] + d[:, :, None] * lams[None, None, :]).min(axis=2)
         else:
             env_a, env_b, env_s = _envelope(F_rest, lams)
@@ -565,10 +623,10 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
             # thresholds in byte space (W sorted): cheaper than a search per candidate.
             ne = len(env_s)
             pos = np.searchsorted(W, (B - c_o[:, None] - env_s[None, :]).ravel(), side="right").reshape(len(opts), ne)
-            cnt = np.zeros((len(opts), m + 1), dtype=np.int64)
-            cnt[:, 0] = ne
-            np.add.at(cnt, (np.repeat(np.arange(len(opts)), ne), pos.ravel()), -1)
-            k = np.cumsum(cnt, axis=1)[:, :m] - 1
+            steps = np.zeros((len(opts), m + 1), dtype=np.int64)
+            steps[:, 0] = ne
+            np.add.at(steps, (np.repeat(np.arange(len(opts)), ne), pos.ravel()), -1)
+            k = np.cumsum(steps, axis=1)[:, :m] - 1
             ub = Pm + env_a[k] + env_b[k] * d
         live = feas & (ub > z + tol)
         dead = feas & ~live
@@ -592,10 +650,12 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
             np.not_equal(nW[1:], nW[:-1], out=last[:-1])
             if not last.all():
                 nW, nP, nI = nW[last], nP[last], nI[last]
-        nS, nK = nI % max(m, 1), opts[nI // max(m, 1)]
+        nK, nS = np.divmod(nI, max(m, 1))
+        nK = opts[nK]
         W, P = nW, nP
-        parents.append(nS)
-        picks.append(nK)
+        # Back-pointers in compact types (they are kept for every stage).
+        parents.append(nS.astype(np.int32))
+        picks.append(nK.astype(_choice_dtype(K + 1)))
         peak = max(peak, len(W))
         if len(W) == 0:
             break
@@ -688,44 +748,70 @@ def dynamic_programme(table: OptionTable, *, max_cells: int = MAX_DP_CELLS) -> M
 
 
 def fptas(table: OptionTable, eps: float, *, max_cells: int = MAX_DP_CELLS) -> MckpResult:
-    """(1 - eps)-approximation by profit scaling.
+    """(1 - eps)-approximation by profit scaling, on the rows the Lagrangian reduction leaves open.
 
-    With a feasible value ``z0 >= LP/2`` (the greedy) and ``k = eps * z0 / n``, values are
-    scaled to ``floor(v / k)`` and a DP over scaled profit finds the least bytes for each
-    profit. For the optimum S*: ``OPT <= k * (best scaled profit) + |S*| k <= value + n k
-    = value + eps z0``, so ``value >= (1 - eps) OPT`` and ``value + n k`` is a valid bound.
+    With a feasible value ``z0 >= LP/2`` (the greedy), the reduction of :func:`branch_and_bound`
+    removes options no solution better than ``z0`` can use; rows left with one option are
+    fixed. On the ``n`` open rows, values are scaled by ``k = eps * z0 / n`` to ``floor(v / k)``
+    and a DP over scaled profit finds the least bytes for each profit. For the optimum S*
+    (which, if better than ``z0``, uses only options kept): ``OPT <= P_fixed + k * (best scaled
+    profit) + n k <= value + eps z0``, so ``value >= (1 - eps) OPT``, and ``P_fixed + k * best +
+    n k`` is a valid bound. Run time O(options * n / eps).
 
     Raises
     ------
     SolveError
-        For eps outside (0, 1), or when rows x scaled-profit range exceeds ``max_cells``.
+        For eps outside (0, 1), or when open rows x scaled-profit range exceeds ``max_cells``.
     """
     if not (0 < eps < 1):
         raise SolveError(f"fptas: eps = {eps!r}: must be in (0, 1)")
-    n, K = table.cost.shape
-    if n == 0:
+    n_all, K = table.cost.shape
+    if n_all == 0:
         return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, {"rows": 0})
     lp = lp_relaxation(table)
     inc = greedy(table, lp)
     z0 = inc.value
-    if not z0 > 0:
-        return MckpResult(inc.choice, z0, max(z0, lp.value), False, {"rows": n})
+    tol = BOUND_SLACK * max(abs(lp.value), 1e-300)
+    lp_bound = lp.value * (1 + BOUND_SLACK)
+    if not z0 > 0 or lp.break_index >= len(lp.slopes) or lp.value - z0 <= tol:
+        return MckpResult(inc.choice, z0, max(z0, lp_bound), False, {"rows": n_all, "open_rows": 0})
+    red = _reduce(table, lp, z0, tol)
+    cnt = red.allowed.sum(axis=1)
+    if (cnt == 0).any():      # nothing beats the greedy
+        return MckpResult(inc.choice, z0, max(z0, red.discarded), False, {"rows": n_all, "open_rows": 0})
+    fixed = cnt == 1
+    fix_idx = np.argmax(red.allowed, axis=1)
+    fr = np.nonzero(fixed)[0]
+    W0 = int(red.costs_ext[fr, fix_idx[fr]].sum())
+    P0 = math.fsum(red.vals_ext[fr, fix_idx[fr]].tolist())
+    rows = np.nonzero(~fixed)[0]
+    n = len(rows)
+    budget = table.budget - W0
+    out = np.where(fixed & (fix_idx < K), fix_idx, -1).astype(np.int64)
+    if n == 0 or budget < 0:
+        value = _pick(table, out)[1] if budget >= 0 else -math.inf
+        if value < z0:
+            out, value = inc.choice, z0
+        bound = min(lp_bound, max(z0 + tol, red.discarded, P0 if budget >= 0 else -math.inf))
+        return MckpResult(out, value, max(bound, value), False, {"rows": n_all, "open_rows": 0})
+    ok = red.allowed[rows, :K]
     k = eps * z0 / n
-    profit = np.where(table.valid, np.floor(table.value / k), 0).astype(np.int64)
-    top = int(math.floor(lp.value * (1 + BOUND_SLACK) / k)) + 1
+    profit = np.where(ok, np.floor(table.value[rows] / k), 0).astype(np.int64)
+    top = int(math.floor(max(lp.value - P0, 0.0) * (1 + BOUND_SLACK) / k)) + 1
+    top = min(top, int(profit.max(axis=1).sum()))
     cells = n * (top + 1)
     if cells > max_cells:
         raise SolveError(f"fptas: the table would have {n} rows x {top + 1} profit units = {cells} cells, "
                          f"more than the limit of {max_cells}; use a larger eps or bb")
-    sentinel = table.budget + 1
+    sentinel = budget + 1
     least = np.full(top + 1, sentinel, dtype=np.int64)
     least[0] = 0
     choice = np.zeros((n, top + 1), dtype=_choice_dtype(K))
-    for i in range(n):
+    for r, i in enumerate(rows):
         new = least.copy()
-        row = choice[i]
-        for kk in range(int(table.valid[i].sum())):
-            p = int(profit[i, kk])
+        row = choice[r]
+        for kk in np.nonzero(ok[r])[0]:
+            p = int(profit[r, kk])
             if p <= 0 or p > top:
                 continue
             cand = np.minimum(least[:top + 1 - p] + table.cost[i, kk], sentinel)
@@ -734,18 +820,18 @@ def fptas(table: OptionTable, eps: float, *, max_cells: int = MAX_DP_CELLS) -> M
             tgt[better] = cand[better]
             row[p:][better] = kk + 1
         least = new
-    reach = np.nonzero(least <= table.budget)[0]
-    p = int(reach.max())
+    reach = np.nonzero(least <= budget)[0]
+    p = int(reach.max()) if len(reach) else 0
     best_p = p
-    out = np.full(n, -1, dtype=np.int64)
-    for i in range(n - 1, -1, -1):
-        kk = int(choice[i, p])
+    for r in range(n - 1, -1, -1):
+        kk = int(choice[r, p])
         if kk:
-            out[i] = kk - 1
-            p -= int(profit[i, kk - 1])
+            out[rows[r]] = kk - 1
+            p -= int(profit[r, kk - 1])
     value = _pick(table, out)[1]
     if value < z0:   # never return less than the greedy (the guarantee holds for both)
         out, value = inc.choice, z0
-    bound = min(lp.value * (1 + BOUND_SLACK), k * best_p + n * k)
+    bound = min(lp_bound, max(z0 + tol, red.discarded, P0 + k * best_p + n * k))
     return MckpResult(out, value, max(bound, value), False,
-                      {"rows": n, "eps": eps, "scale": k, "profit_units": top, "cells": cells, "lp": lp.value})
+                      {"rows": n_all, "open_rows": n, "eps": eps, "scale": k, "profit_units": top, "cells": cells,
+                       "lp": float(lp.value)})

@@ -253,3 +253,59 @@ def test_large_l3gs_like_slot_bb_matches_dp() -> None:
     bb, dp = solve_bb(inst), solve_dp(inst)
     assert bb.status is Status.OPTIMAL and dp.status is Status.OPTIMAL
     assert rel_close(bb.objective, dp.objective)
+
+
+@pytest.mark.parametrize("path", ["direct", "envelope"])
+@pytest.mark.parametrize("kind", ["strong", "weak", "l3gs"])
+def test_bb_bound_paths_match_dp(monkeypatch, path: str, kind: str) -> None:
+    # Both ways of bounding a stage's candidates (every multiplier, or the lower envelope of the
+    # multiplier lines) must give the exact optimum; dp is the reference (integer costs fit).
+    monkeypatch.setattr(_mckp, "_DIRECT_BOUND_CELLS", 10**12 if path == "direct" else 0)
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        if kind == "l3gs":
+            from l3gs_opt.synth import synth_instance
+
+            base = synth_instance(objects=150, layers=4, slots=1, seed=seed, total_splats=150 * 180)
+            inst = Instance(representation="layered", bandwidth=[150_000 * 248 // 180], cost=base.cost,
+                            utility=base.utility)
+        else:
+            J, L, R = 120, 6, 60
+            if kind == "strong":
+                wp = np.sort(rng.integers(1, R + 1, size=(J, L)), axis=1)
+                cost, profit = np.cumsum(wp, axis=1), np.cumsum(wp + 5, axis=1)
+            else:
+                cost = rng.integers(1, R + 1, size=(J, L))
+                profit = np.maximum(1, cost + rng.integers(-5, 6, size=(J, L)))
+            inst = Instance(representation="separate", bandwidth=[int(0.5 * (cost.min(1) + cost.max(1)).sum())],
+                            cost=cost, utility=profit[None] + rng.random((1, J, L)))
+        bb, dp = solve_bb(inst), solve_dp(inst)
+        assert bb.status is Status.OPTIMAL
+        assert is_feasible(inst, bb.arrivals, slot=0)
+        assert rel_close(bb.objective, dp.objective), (bb.objective, dp.objective, bb.details)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), family=st.sampled_from(("random", "ties", "held", "huge")),
+       strict=st.booleans())
+def test_bb_equals_dp_on_mid_size(seed: int, family: str, strict: bool) -> None:
+    # Too large for brute force (J x L = 160 chunks); the DP is exact on these small integer costs.
+    inst = mckp_instance(seed, family, J=40, L=4, same_slot_layers=not strict)
+    bb, dp = solve_bb(inst), solve_dp(inst)
+    assert bb.status is Status.OPTIMAL and dp.status is Status.OPTIMAL
+    assert is_feasible(inst, bb.arrivals, slot=0)
+    assert rel_close(bb.objective, dp.objective)
+    assert bb.bound >= dp.objective * (1 - 1e-12)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), family=st.sampled_from(("random", "ties", "held")),
+       eps=st.sampled_from((0.3, 0.1, 0.01)))
+def test_fptas_guarantee_on_mid_size(seed: int, family: str, eps: float) -> None:
+    inst = mckp_instance(seed, family, J=40, L=4)
+    opt = solve_dp(inst).objective
+    constant = slot_table(inst, 0)[1]
+    sol = solve_fptas(inst, eps)
+    assert is_feasible(inst, sol.arrivals, slot=0)
+    assert sol.objective - constant >= (1 - eps) * (opt - constant) - 1e-9 * max(1.0, opt)
+    assert sol.bound >= opt * (1 - 1e-12)

@@ -32,8 +32,8 @@ def test_view_dependent_colour():
 
 
 def test_dropping_splats_hurts_ssim():
-    scene = make_scene(20_000, seed=0)
-    cam = orbit_path(4, width=128, height=96)[1]
+    scene = make_scene(12_000, seed=0)
+    cam = orbit_path(4, width=112, height=84)[1]
     full = render_scene(scene, cam).image.clamp(0, 1).numpy()
     rng = np.random.default_rng(0)
     scores = []
