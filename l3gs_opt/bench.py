@@ -6,7 +6,9 @@
   ``time_limit_s * 1.5 + 10`` seconds is killed and recorded as ``time_limit`` (flag ``killed``).
 * Checked: every record's schedule is re-checked for feasibility in exact bytes and its objective
   re-evaluated from the instance; exact methods must agree and bounds must not cut off the best
-  known optimum. Disagreements are flagged in the record, never dropped.
+  known optimum. Disagreements are flagged in the record, never dropped. A record's
+  ``best_known`` and ``rel_error`` are as of when it was written (from the records of its instance
+  before it); ``l3gs-opt report`` recomputes both over the whole file.
 * Executors: ``local`` (a pool of processes on this machine) or ``dask`` (a Dask cluster: a
   local one by default, or the scheduler at ``address``).
 """

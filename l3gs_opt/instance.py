@@ -227,12 +227,14 @@ class Instance:
         if not isinstance(meta, Mapping):
             raise InstanceError("meta", "must be a JSON object")
         try:
-            json.dumps(meta, allow_nan=False)
+            # A JSON round trip both checks and copies; read-only mappings (this class's own meta,
+            # passed back through ``replace``) are written as the objects they stand for.
+            meta = json.loads(json.dumps(meta, allow_nan=False, default=_mapping_as_dict))
         except (TypeError, ValueError) as exc:
             raise InstanceError("meta", f"must be JSON-serialisable: {exc}") from None
         for name, value in [("bandwidth", bandwidth), ("cost", cost), ("utility", utility), ("held", held),
                             ("slot_s", float(slot_s)), ("options", options), ("names", names),
-                            ("meta", types.MappingProxyType(copy.deepcopy(dict(meta))))]:
+                            ("meta", types.MappingProxyType(meta))]:
             object.__setattr__(self, name, value)
 
     def _validated_held(self, held: Any, J: int, L: int) -> np.ndarray:
@@ -327,6 +329,12 @@ class Instance:
     def __repr__(self) -> str:
         return (f"Instance(problem={self.problem}, representation={self.representation!r}, T={self.T}, "
                 f"J={self.J}, L={self.L}, options={self.options})")
+
+
+def _mapping_as_dict(value: Any) -> dict[str, Any]:
+    if isinstance(value, Mapping):
+        return dict(value)
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
 
 
 def _rebuild(representation, bandwidth, cost, utility, held, slot_s, options, names, meta) -> Instance:

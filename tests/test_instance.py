@@ -164,3 +164,17 @@ def test_json_written_is_plain(tmp_path):
     path = save_instance(instance_from_dict(base()), tmp_path / "i.json")
     data = json.loads(path.read_text())
     assert data["schema"] == "l3gs-opt/instance@1" and "held" not in data
+
+
+def test_replace_keeps_meta_and_copies_it():
+    # Regression: replace() passed the stored read-only meta back in, and the JSON check refused it.
+    base = Instance("layered", bandwidth=[5], cost=[[2]], utility=[[[1.0]]], meta={"trace": {"name": "t", "window": [0, 60]}})
+    changed = base.replace(bandwidth=[7])
+    assert changed.bandwidth.tolist() == [7]
+    assert changed.meta == base.meta
+    source = {"nested": [1, 2]}
+    own = Instance("layered", bandwidth=[5], cost=[[2]], utility=[[[1.0]]], meta=source)
+    source["nested"].append(3)
+    assert own.meta["nested"] == [1, 2]
+    with pytest.raises(InstanceError, match="meta"):
+        base.replace(meta={"bad": float("nan")})
