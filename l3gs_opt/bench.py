@@ -34,7 +34,8 @@ from .instance import Instance
 from .solution import Solution, Status
 from .suites import InstanceSpec, split_method
 
-__all__ = ["RECORD_SCHEMA", "BenchTask", "run_bench", "read_records", "run_task", "AGREE_TOL"]
+__all__ = ["RECORD_SCHEMA", "BenchTask", "run_bench", "read_records", "recheck", "run_task", "AGREE_TOL",
+           "CROSS_FLAGS"]
 
 RECORD_SCHEMA = "l3gs-opt/bench-record@1"
 #: Relative tolerance for two proven optima to count as equal and for a bound to count as valid:
@@ -185,6 +186,31 @@ class _InstanceState:
     best_feasible: float = -math.inf
 
 
+#: Flags that depend on the other records of the instance (the rest describe the record's own run).
+CROSS_FLAGS = ("mismatch", "cuts_bound_of_others", "bound_invalid")
+
+
+def recheck(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Copies of ``records`` with the cross-record flags recomputed over the whole list, in order.
+
+    A record written during a run is checked against the records before it; after a method is
+    re-run (records removed and the run resumed), this replays the checks so that no flag refers to
+    an answer that is no longer in the file.
+    """
+    states: dict[tuple[str, str], _InstanceState] = {}
+    out = []
+    for rec in records:
+        rec = {k: v for k, v in rec.items() if k not in ("mismatch_with", "invalid_bounds_of")}
+        rec["flags"] = [f for f in rec.get("flags", []) if f not in CROSS_FLAGS]
+        _cross_check(rec, states.setdefault(_instance_key(rec), _InstanceState()))
+        out.append(rec)
+    return out
+
+
+def _instance_key(record: Mapping[str, Any]) -> tuple[str, str]:
+    return record["suite"], record["instance_id"]
+
+
 def _cross_check(record: dict[str, Any], state: _InstanceState) -> None:
     """Flag disagreement between exact methods and bounds that cut off a known solution."""
     obj, bound, status = record.get("objective"), record.get("bound"), record.get("status")
@@ -277,18 +303,18 @@ def run_bench(tasks: Iterable[BenchTask], out_path: str | os.PathLike[str], *, t
         raise SolveError(f"{out_path} already holds {len(existing)} records: pass --resume to continue it, "
                          "or choose another --out")
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    states: dict[str, _InstanceState] = {}
+    states: dict[tuple[str, str], _InstanceState] = {}
     done = set()
     for rec in existing:
         done.add(rec["record_id"])
-        _cross_check(dict(rec, flags=list(rec.get("flags", []))), states.setdefault(rec["instance_id"],
+        _cross_check(dict(rec, flags=list(rec.get("flags", []))), states.setdefault(_instance_key(rec),
                                                                                     _InstanceState()))
     todo = _order([t for t in tasks if t.record_id not in done])
     bar = tqdm(total=len(todo), desc="bench", unit="record", disable=not progress)
 
     with out_path.open("a", encoding="utf-8") as fh:
         def write(rec: dict[str, Any]) -> None:
-            _cross_check(rec, states.setdefault(rec["instance_id"], _InstanceState()))
+            _cross_check(rec, states.setdefault(_instance_key(rec), _InstanceState()))
             fh.write(json.dumps(rec, allow_nan=False, default=str) + "\n")
             fh.flush()
             bar.update(1)

@@ -25,7 +25,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .bench import AGREE_TOL, read_records
+from .bench import AGREE_TOL, read_records, recheck
 
 __all__ = ["ERROR_FLOOR", "annotate", "write_report", "summarise"]
 
@@ -34,11 +34,11 @@ ERROR_FLOOR = 1e-12
 
 
 def annotate(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Recompute best known optimum, relative error and bound validity per instance from all records;
-    suites mixing single-slot and multi-slot instances are split into ``SUITE-single-slot`` and
-    ``SUITE-multi-slot``."""
+    """Recompute the cross-record flags, best known optimum, relative error and bound validity per
+    instance from all records; suites mixing single-slot and multi-slot instances are split into
+    ``SUITE-single-slot`` and ``SUITE-multi-slot``."""
     by_instance: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for r in records:
+    for r in recheck(records):
         by_instance[(r["suite"], r["instance_id"])].append(r)
     out = []
     for group in by_instance.values():

@@ -94,6 +94,26 @@ def test_wrong_methods_are_flagged_not_dropped(tmp_path):
         assert f"stiff/cost_7_orders-T5/{method}" in report.split("## Flagged records")[1]
 
 
+def test_recheck_replays_cross_flags_after_a_rerun():
+    """Records flagged against a wrong answer lose the flag once that answer is gone from the file."""
+    from l3gs_opt.bench import recheck
+
+    def rec(method, objective, bound, flags=()):
+        return {"suite": "s", "instance_id": "i", "record_id": f"s/i/{method}", "method": method,
+                "status": "optimal", "objective": objective, "bound": bound, "feasible": True,
+                "objective_ok": True, "flags": list(flags)}
+
+    wrong, right = rec("wrong", 9.0, 9.0), rec("right", 10.0, 10.0, ["mismatch", "cuts_bound_of_others", "killed"])
+    replayed = {r["method"]: r for r in recheck([wrong, right])}
+    assert "mismatch" in replayed["right"]["flags"] and "killed" in replayed["right"]["flags"]
+    assert "bound_invalid" not in replayed["wrong"]["flags"]  # nothing better was known before it
+    alone = recheck([right])[0]
+    assert alone["flags"] == ["killed"] and "mismatch_with" not in alone
+    later = {r["method"]: r for r in recheck([right, wrong])}
+    assert {"mismatch", "bound_invalid"} <= set(later["wrong"]["flags"])
+    assert right["flags"] == ["mismatch", "cuts_bound_of_others", "killed"]  # inputs are not modified
+
+
 def test_hung_method_is_killed(tmp_path):
     def hang(instance, **_):
         time.sleep(60)
