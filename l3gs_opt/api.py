@@ -52,6 +52,9 @@ def solve(instance: Instance, method: str = "ilp", *, backend: str = "highs", fo
     time_limit_s : float, optional
         Seconds; a run that hits it says ``time_limit`` and carries a valid bound.
     presolve : bool
+        Drop chunks that cannot matter before modelling (see :mod:`l3gs_opt.presolve`). The
+        optimum is unchanged, but the ``lp`` bound is that of the presolved model: dropping
+        dominated options can make it tighter than the textbook LP (``presolve=False``).
     options : mapping, optional
         Backend-specific options (unknown ones warn).
 
