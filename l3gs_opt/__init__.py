@@ -18,6 +18,43 @@ from .api import METHODS, method_names, solve
 
 __version__ = "0.1.0"
 
+# The rest of the public API is imported on first use (PEP 562): the renderer-backed modules pull
+# in torch, which a user who only solves instances should not wait for.
+_LAZY = {
+    "traces": ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes"],
+    "synth": ["synth_instance", "walking_viewer"],
+    "predictors": ["PredictionError", "predict_viewport", "viewport_errors", "predict_bandwidth",
+                   "bandwidth_errors"],
+    "poses": ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
+              "write_camera_path", "synthetic_poses"],
+    "utility": ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
+                "build_utility_table"],
+    "bench": ["BenchTask", "run_bench", "read_records"],
+    "report": ["write_report"],
+    "suites": ["InstanceSpec", "suite_specs"],
+    "scene_io": ["SceneError", "SplatScene", "read_ply", "write_ply"],
+    "cameras": ["CameraError", "Camera", "load_cameras", "save_cameras", "look_at"],
+    "scene_make": ["make_scene"],
+    "camera_paths": ["orbit_path", "walk_path"],
+}
+_LAZY_NAMES = {name: module for module, names in _LAZY.items() for name in names}
+
+
+def __getattr__(name: str):
+    module = _LAZY_NAMES.get(name)
+    if module is None:
+        raise AttributeError(f"module 'l3gs_opt' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY_NAMES))
+
+
 __all__ = [
     "BackendUnavailableError",
     "GAP_TOL",
@@ -42,4 +79,5 @@ __all__ = [
     "relative_gap",
     "save_instance",
     "solve",
+    *sorted(_LAZY_NAMES),
 ]

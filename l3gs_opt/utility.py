@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,7 +36,8 @@ from .cameras import Camera
 from .errors import L3gsError
 from .scene_io import SplatScene
 
-__all__ = ["UtilityError", "splat_utility", "object_layer_utility", "UtilityTable", "build_utility_table"]
+__all__ = ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
+           "build_utility_table"]
 
 #: Default distance floor (world units): the renderer's near plane.
 DISTANCE_FLOOR = 0.01
@@ -45,34 +47,77 @@ class UtilityError(L3gsError, ValueError):
     """Bad utility options or table parameters."""
 
 
-def splat_utility(scene: SplatScene, camera: Camera, *, area: str = "square",
-                  distance_floor: float = DISTANCE_FLOOR, dtype: torch.dtype = torch.float32) -> np.ndarray:
+@dataclass(frozen=True, eq=False)
+class UtilityScene:
+    """The camera-independent part of Eq. 1, computed once per scene.
+
+    World covariances take about as long as the projection itself (~20 ms each for 180k splats
+    on this machine); a scheduler evaluates one scene from a new camera every slot, so it prepares
+    the scene once and pays only the projection per viewpoint.
+    """
+
+    means: torch.Tensor       # [N, 3] world
+    covars: torch.Tensor      # [N, 3, 3] world units squared
+    opacity: torch.Tensor     # [N] activated
+    object_ids: np.ndarray    # [N] int64
+    layers: np.ndarray        # [N] int64
+    shape_jl: tuple[int, int]
+
+    @classmethod
+    def from_scene(cls, scene: SplatScene, dtype: torch.dtype = torch.float32) -> "UtilityScene":
+        """Prepare ``scene`` in ``dtype`` (float32 for speed, float64 for reference checks)."""
+        from .renderer.projection import covariances_from_params
+
+        obj, lay, J, L = _labels(scene)
+        with torch.no_grad():
+            covars = covariances_from_params(torch.tensor(scene.log_scales, dtype=dtype),
+                                             torch.tensor(scene.quats, dtype=dtype))
+            opacity = torch.sigmoid(torch.tensor(scene.opacity_logits, dtype=dtype))
+        return cls(torch.tensor(scene.means, dtype=dtype), covars, opacity, obj, lay, (J, L))
+
+    @property
+    def num_splats(self) -> int:
+        return int(self.means.shape[0])
+
+
+def _prepared(scene: "SplatScene | UtilityScene", dtype: torch.dtype | None) -> UtilityScene:
+    if isinstance(scene, UtilityScene):
+        if dtype is not None and dtype != scene.means.dtype:
+            raise UtilityError(f"dtype {dtype}: the scene was prepared in {scene.means.dtype}")
+        return scene
+    return UtilityScene.from_scene(scene, dtype or torch.float32)
+
+
+def splat_utility(scene: "SplatScene | UtilityScene", camera: Camera, *, area: str = "square",
+                  distance_floor: float = DISTANCE_FLOOR, dtype: torch.dtype | None = None) -> np.ndarray:
     """Eq. 1 for every splat: ``[N]`` float64 (pixels per world unit).
 
     Parameters
     ----------
-    scene : SplatScene
+    scene : SplatScene or UtilityScene
+        A :class:`UtilityScene` skips the per-scene preparation (pass one when evaluating many
+        viewpoints).
     camera : Camera
     area : {"square", "ellipse"}
         The 3-sigma extent whose clipped area is the overlap (see the module docstring).
     distance_floor : float
         Distances below it count as it (world units), so a splat at the camera has a finite utility.
-    dtype : torch dtype
-        Projection precision (float32 for speed, float64 for reference checks).
+    dtype : torch dtype, optional
+        Projection precision: float32 (default) for speed, float64 for reference checks; a
+        prepared scene keeps the dtype it was prepared in.
     """
-    from .renderer.projection import covariances_from_params, project_gaussians
+    from .renderer.projection import project_gaussians
 
     if area not in ("square", "ellipse"):
         raise UtilityError(f"area {area!r} is not one of square, ellipse")
     if not (distance_floor > 0 and math.isfinite(distance_floor)):
         raise UtilityError(f"distance_floor = {distance_floor!r}: must be a positive number")
-    if scene.num_splats == 0:
+    prep = _prepared(scene, dtype)
+    if prep.num_splats == 0:
         return np.zeros(0)
+    dtype = prep.means.dtype
     with torch.no_grad():
-        means = torch.tensor(scene.means, dtype=dtype)  # a copy: scene arrays are read-only
-        covars = covariances_from_params(torch.tensor(scene.log_scales, dtype=dtype),
-                                         torch.tensor(scene.quats, dtype=dtype))
-        proj = project_gaussians(means, covars, camera)
+        proj = project_gaussians(prep.means, prep.covars, camera)
         mx, my = proj.means2d[:, 0], proj.means2d[:, 1]
         r = proj.radii.to(dtype)
         w = (torch.clamp(mx + r, 0, camera.width) - torch.clamp(mx - r, 0, camera.width)).clamp(min=0)
@@ -87,9 +132,8 @@ def splat_utility(scene: SplatScene, camera: Camera, *, area: str = "square",
             overlap = 9 * math.pi * torch.sqrt(det) * share
         overlap = torch.where(proj.visible, overlap, torch.zeros_like(overlap))
         centre = torch.as_tensor(camera.center, dtype=dtype)
-        dist = torch.linalg.norm(means - centre, dim=1).clamp(min=distance_floor)
-        opacity = torch.sigmoid(torch.tensor(scene.opacity_logits, dtype=dtype))
-        return (overlap / dist * opacity).to(torch.float64).numpy()
+        dist = torch.linalg.norm(prep.means - centre, dim=1).clamp(min=distance_floor)
+        return (overlap / dist * prep.opacity).to(torch.float64).numpy()
 
 
 def _labels(scene: SplatScene) -> tuple[np.ndarray, np.ndarray, int, int]:
@@ -100,16 +144,15 @@ def _labels(scene: SplatScene) -> tuple[np.ndarray, np.ndarray, int, int]:
     return obj, lay, J, L
 
 
-def object_layer_utility(scene: SplatScene, camera: Camera, **options) -> np.ndarray:
+def object_layer_utility(scene: "SplatScene | UtilityScene", camera: Camera, **options) -> np.ndarray:
     """``[J, L]``: summed splat utility of each (object id, layer) (``dU`` for a layered scene).
 
     Object ids index rows directly (an id with no splats has a zero row).
     """
-    u = splat_utility(scene, camera, **options)
-    obj, lay, J, L = _labels(scene)
-    out = np.zeros((J, L))
-    np.add.at(out, (obj, lay), u)
-    return out
+    prep = _prepared(scene, options.pop("dtype", None))
+    u = splat_utility(prep, camera, **options)
+    J, L = prep.shape_jl
+    return np.bincount(prep.object_ids * L + prep.layers, weights=u, minlength=J * L).reshape(J, L)
 
 
 def _look_rotation(yaw_deg: float, pitch_deg: float, up_axis: int) -> np.ndarray:
@@ -152,21 +195,40 @@ class UtilityTable:
         m[:3, 3] = -rot @ self.positions[p]
         return Camera(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy, world_to_camera=m)
 
-    def _directions(self) -> np.ndarray:
+    @cached_property
+    def directions(self) -> np.ndarray:
+        """``[O, 3]`` unit viewing direction (camera +z in world) of each grid orientation."""
         return np.stack([_look_rotation(y, p, self.up_axis)[2] for y, p in self.orientations])
 
     def nearest(self, camera: Camera) -> tuple[int, int]:
         """Indices (position, orientation) of the grid viewpoint nearest to ``camera``."""
         p = int(np.argmin(np.linalg.norm(self.positions - camera.center, axis=1)))
-        forward = camera.world_to_camera[2, :3]
-        o = int(np.argmax(self._directions() @ forward))
-        return p, o
+        return p, self._orientation(camera)
 
-    def lookup(self, camera: Camera) -> np.ndarray:
-        """``[J, L]`` utilities of the nearest grid viewpoint."""
-        p, o = self.nearest(camera)
-        row = self.values.getrow(p * len(self.orientations) + o).toarray()[0]
-        return row.reshape(self.shape_jl)
+    def _orientation(self, camera: Camera) -> int:
+        return int(np.argmax(self.directions @ camera.world_to_camera[2, :3]))
+
+    def lookup(self, camera: Camera, *, neighbours: int = 1) -> np.ndarray:
+        """``[J, L]`` utilities seen from ``camera``, from the grid.
+
+        ``neighbours=1``: the entry of the nearest grid viewpoint (nearest position, nearest
+        viewing direction). ``neighbours=k``: the inverse-distance weighted mean over the k nearest
+        grid positions, each at the viewing direction nearest to the camera's (exact at a grid
+        position).
+        """
+        if not 1 <= neighbours <= len(self.positions):
+            raise UtilityError(f"neighbours = {neighbours}: must be in [1, {len(self.positions)}]")
+        o = self._orientation(camera)
+        dist = np.linalg.norm(self.positions - camera.center, axis=1)
+        near = np.argsort(dist, kind="stable")[:neighbours]
+        if dist[near[0]] == 0.0 or neighbours == 1:
+            weights = np.zeros(len(near))
+            weights[0] = 1.0
+        else:
+            weights = 1.0 / dist[near]
+            weights /= weights.sum()
+        rows = self.values[near * len(self.orientations) + o].toarray()
+        return (weights @ rows).reshape(self.shape_jl)
 
     @property
     def nbytes(self) -> int:
@@ -174,7 +236,7 @@ class UtilityTable:
         return int(v.data.nbytes + v.indices.nbytes + v.indptr.nbytes)
 
 
-def build_utility_table(scene: SplatScene, positions: np.ndarray, *, yaw_steps: int = 12,
+def build_utility_table(scene: "SplatScene | UtilityScene", positions: np.ndarray, *, yaw_steps: int = 12,
                         pitches_deg: tuple[float, ...] = (-20.0, 0.0, 20.0), up_axis: int = 2,
                         width: int = 320, height: int = 240, fov_deg: float = 70.0, progress: bool = False,
                         **options) -> UtilityTable:
@@ -192,12 +254,13 @@ def build_utility_table(scene: SplatScene, positions: np.ndarray, *, yaw_steps: 
         raise UtilityError("need at least one yaw step and one pitch")
     fx = width / (2 * math.tan(math.radians(fov_deg) / 2))
     orientations = np.array([(360.0 * k / yaw_steps, p) for k in range(yaw_steps) for p in pitches_deg])
-    _, _, J, L = _labels(scene)
+    prep = _prepared(scene, options.pop("dtype", None))
+    J, L = prep.shape_jl
     table = UtilityTable(positions, orientations, sp.csr_matrix((0, 0)), (J, L), up_axis,
                          (width, height, fx, fx, width / 2, height / 2))
     rows = []
     for p in tqdm(range(len(positions)), desc="utility table", disable=not progress):
         for o in range(len(orientations)):
-            rows.append(sp.csr_matrix(object_layer_utility(scene, table.camera(p, o), **options).reshape(1, -1)))
+            rows.append(sp.csr_matrix(object_layer_utility(prep, table.camera(p, o), **options).reshape(1, -1)))
     values = sp.vstack(rows, format="csr") if rows else sp.csr_matrix((0, J * L))
     return UtilityTable(positions, orientations, values, (J, L), up_axis, table.intrinsics)

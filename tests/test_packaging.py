@@ -45,3 +45,14 @@ def test_plain_wheel_contains_and_imports_the_mapped_packages(tmp_path):
     assert proc.returncode == 0, proc.stderr
     path, status = proc.stdout.split()
     assert Path(path).is_relative_to(target.resolve()) and status == "optimal"
+
+
+def test_public_api_names_all_resolve_and_solving_does_not_import_torch():
+    code = ("import sys, l3gs_opt\n"
+            "assert 'torch' not in sys.modules, 'import l3gs_opt pulled in torch'\n"
+            "missing = [n for n in l3gs_opt.__all__ if not hasattr(l3gs_opt, n)]\n"
+            "assert not missing, missing\n"
+            "assert 'UtilityScene' in dir(l3gs_opt)\n"
+            "try:\n    l3gs_opt.no_such_name\nexcept AttributeError as e:\n    assert 'no_such_name' in str(e)\n"
+            "else:\n    raise SystemExit('no AttributeError')\n")
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -11,7 +11,8 @@ from l3gs_opt.camera_paths import orbit_path
 from l3gs_opt.cameras import Camera
 from l3gs_opt.scene_io import SplatScene
 from l3gs_opt.scene_make import make_scene
-from l3gs_opt.utility import UtilityError, build_utility_table, object_layer_utility, splat_utility
+from l3gs_opt.utility import (UtilityError, UtilityScene, build_utility_table, object_layer_utility,
+                              splat_utility)
 
 
 def reference_utility(scene: SplatScene, cam: Camera, floor: float = 0.01) -> np.ndarray:
@@ -78,6 +79,17 @@ def test_matches_plain_float64_loop(scene, cams):
         assert fast32.sum() == pytest.approx(ref.sum(), rel=1e-2)
 
 
+def test_prepared_scene_gives_the_same_utilities(scene, cams):
+    import torch
+
+    prepared = UtilityScene.from_scene(scene)
+    for cam in cams:
+        np.testing.assert_array_equal(splat_utility(prepared, cam), splat_utility(scene, cam))
+        np.testing.assert_array_equal(object_layer_utility(prepared, cam), object_layer_utility(scene, cam))
+    with pytest.raises(UtilityError, match="prepared in torch.float32"):
+        splat_utility(prepared, cams[0], dtype=torch.float64)
+
+
 def test_culled_and_offscreen_splats_have_zero_utility(cams):
     cam = cams[0]
     forward = cam.world_to_camera[2, :3]
@@ -114,3 +126,19 @@ def test_table_lookup_at_grid_points_is_exact_and_sparse(scene):
     cam = table.camera(1, 2)
     np.testing.assert_allclose(table.lookup(cam), object_layer_utility(scene, cam), rtol=1e-12)
     assert table.nearest(cam) == (1, 2)
+
+
+def test_table_interpolates_between_grid_positions(scene):
+    positions = np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5], [5.0, 5.0, 1.5]])
+    table = build_utility_table(scene, positions, yaw_steps=4, pitches_deg=(0.0,), width=80, height=60)
+    at_grid = table.camera(1, 3)
+    np.testing.assert_allclose(table.lookup(at_grid, neighbours=3), table.lookup(at_grid), rtol=0, atol=0)
+    # Halfway between the first two positions, same orientation: the plain mean of their entries.
+    m = at_grid.world_to_camera.copy()
+    rot = m[:3, :3]
+    m[:3, 3] = -rot @ np.array([0.5, 0.0, 1.5])
+    mid = at_grid.replace(world_to_camera=m)
+    expect = (table.values[0 * 4 + 3].toarray() + table.values[1 * 4 + 3].toarray())[0] / 2
+    np.testing.assert_allclose(table.lookup(mid, neighbours=2).ravel(), expect, rtol=1e-12)
+    with pytest.raises(UtilityError, match="neighbours = 4"):
+        table.lookup(mid, neighbours=4)
