@@ -85,6 +85,8 @@ def run_task(task: BenchTask, time_limit_s: float | None,
         "spec": spec.to_dict(), "method": task.method, "T": instance.T, "J": instance.J, "L": instance.L,
         "problem": "MCKP" if spec.single_slot else instance.problem, "time_limit_s": time_limit_s,
         "versions": _versions(), "flags": [],
+        # Run times on a shared machine mean little without the load they ran under.
+        "loadavg_1m": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         # A relaxation answers with a bound only (its schedule is empty): judged by its bound, not its error.
         "bound_only": split_method(task.method)[0] == "lp",
     }

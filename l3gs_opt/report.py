@@ -91,9 +91,11 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, An
         bound_gaps = [(r["bound"] - r["best_known"]) / abs(r["best_known"]) for r in rs
                       if r.get("bound") is not None and r.get("best_known_proven") and r["best_known"]]
         times = [r["runtime_s"] for r in rs if r.get("runtime_s") is not None]
+        loads = [r["loadavg_1m"] for r in rs if r.get("loadavg_1m") is not None]
         table[suite][method] = {
             "records": len(rs),
             "median_time_s": float(np.median(times)) if times else None,
+            "median_load": float(np.median(loads)) if loads else None,
             "median_error": float(np.median(errors)) if errors else None,
             "max_error": float(max(errors)) if errors else None,
             "answered": len(errors),
@@ -247,15 +249,16 @@ def write_report(records_path: str | os.PathLike[str] | Iterable[dict], out_dir:
         lines += [f"- {line}" for line in _recommend(summary[suite])]
         lines += ["", "Error: (best known optimum - objective) / best known optimum. Bound gap: (bound - best "
                       "known optimum) / best known optimum, over instances with a proven optimum; `lp` rows answer "
-                      "with a bound only.", "",
+                      "with a bound only. Load: median 1-minute load average when the records started "
+                      "(2 cores; '-' where records predate it).", "",
                   "| method | records | proven optimal | median time (s) | median error | max error | "
-                  "median bound gap | time-size slope | flags |", "|---|---|---|---|---|---|---|---|---|"]
+                  "median bound gap | time-size slope | load | flags |", "|---|---|---|---|---|---|---|---|---|---|"]
         for m, s in summary[suite].items():
             med = "bound only" if s["bound_only"] else _fmt(s["median_error"], ".2e")
             mx = "bound only" if s["bound_only"] else _fmt(s["max_error"], ".2e")
             lines.append(f"| {m} | {s['records']} | {s['optimal']} | {_fmt(s['median_time_s'])} | {med} | {mx} | "
                          f"{_fmt(s['median_bound_gap'], '.2e')} | {_fmt(slopes.get(m), '.2f')} | "
-                         f"{', '.join(s['flags']) or '-'} |")
+                         f"{_fmt(s['median_load'], '.1f')} | {', '.join(s['flags']) or '-'} |")
         lines += ["", f"![error against run time]({err_png})", "", f"![run time against size]({size_png})", ""]
         if suite.startswith("stiff"):
             lines += ["### Stability (stiff cases)", "", "| case | method | status | error | feasible | bound valid |",
