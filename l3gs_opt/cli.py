@@ -35,6 +35,31 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _window(text: str) -> tuple[int, int]:
+    try:
+        start, length = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"window {text!r}: expected START:LEN in whole seconds") from None
+    if start < 0 or length < 1:
+        raise argparse.ArgumentTypeError(f"window {text!r}: START must be >= 0 and LEN >= 1")
+    return start, length
+
+
+def _cmd_from_scene(args: argparse.Namespace) -> int:
+    from .instance_io import save_instance
+    from .poses import PoseMapping
+    from .scene_instance import Z_UP_MAPPING, instance_from_bundle
+
+    start, length = args.window
+    instance = instance_from_bundle(args.bundle, args.path, args.trace, mbps=args.mbps, start=start, slots=length,
+                                    predict=args.predict, samples_per_slot=args.samples_per_slot,
+                                    mapping=Z_UP_MAPPING if args.up == "z" else PoseMapping(),
+                                    width=args.width, height=args.height, fov_deg=args.fov, progress=True)
+    path = save_instance(instance, args.output)
+    print(f"wrote {path}: {instance!r}")
+    return 0
+
+
 def _cmd_synth(args: argparse.Namespace) -> int:
     from .instance import Options
     from .instance_io import save_instance
@@ -203,6 +228,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--budget", default="per_slot", choices=["per_slot", "cumulative"])
     s.add_argument("-o", "--output", required=True, help="output file (.json or .npz)")
     s.set_defaults(func=_cmd_synth)
+    f = inst.add_parser("from-scene", help="an instance from a bundle, a viewer path and a bandwidth trace")
+    f.add_argument("bundle", help="bundle directory (l3gs-opt scene build)")
+    f.add_argument("--path", required=True, help="headset pose log, camera JSON list or 4x4 camera path file")
+    f.add_argument("--trace", default="lumos-throughput-mid-11", help="bundled trace name or a trace file")
+    f.add_argument("--mbps", type=float, default=11.8, help="scale the trace to this mean (Mbit/s)")
+    f.add_argument("--window", default="0:60", type=_window, help="START:LEN in seconds of the trace (default 0:60)")
+    f.add_argument("--predict", action="store_true", help="utilities for the predicted viewports (pose logs)")
+    f.add_argument("--samples-per-slot", type=int, default=4, help="viewpoints averaged per slot (pose logs)")
+    f.add_argument("--up", default="z", choices=["y", "z"], help="the scene's up axis (pose logs are y up)")
+    f.add_argument("--width", type=int, default=800)
+    f.add_argument("--height", type=int, default=600)
+    f.add_argument("--fov", type=float, default=70.0, help="horizontal field of view, degrees")
+    f.add_argument("-o", "--output", required=True, help="output file (.json or .npz)")
+    f.set_defaults(func=_cmd_from_scene)
     c = inst.add_parser("check", help="validate an instance file and summarise it")
     c.add_argument("instance")
     c.set_defaults(func=_cmd_check)
