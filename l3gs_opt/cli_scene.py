@@ -1,4 +1,4 @@
-"""CLI subcommands for scenes and rendering: ``render``, ``scene make``, ``scene info``.
+"""CLI subcommands for scenes and rendering: ``render``, ``scene make|info|segment|build``.
 
 Wire into the main parser with ``register(subparsers)``; each subcommand sets ``func`` to a
 handler ``handler(args) -> int``.  Bad input raises :class:`l3gs_opt.errors.L3gsError`
@@ -145,8 +145,54 @@ def _cmd_scene_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_sizes(text: str) -> list:
+    """``45000,90000`` -> ``[45000, 90000]``; entries that are not integers are kept as text so that
+    the library's size check names the field and index."""
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            out.append(int(part))
+        except ValueError:
+            try:
+                out.append(float(part))
+            except ValueError:
+                out.append(part)
+    return out
+
+
+def _cmd_scene_segment(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .scene_io import read_ply, write_ply
+    from .segment import segment_scene
+
+    scene = read_ply(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    out = segment_scene(scene, args.objects, seed=args.seed)
+    path = write_ply(out, args.out)
+    counts = np.bincount(out.object_ids, minlength=args.objects).tolist()
+    print(f"wrote {path}: {out.num_splats} splats in {args.objects} objects (k-means on the means), "
+          f"splats per object {counts}")
+    return 0
+
+
+def _cmd_scene_build(args: argparse.Namespace) -> int:
+    from .scene_build import DEFAULT, QUICK, build_bundle
+
+    cams = load_any_cameras(args.cameras)
+    schedule = QUICK if args.quick else DEFAULT
+    if args.max_width is not None:
+        import dataclasses
+
+        schedule = dataclasses.replace(schedule, max_width=args.max_width)
+    res = build_bundle(args.teacher, cams, _parse_sizes(args.layers), args.variant, args.out, schedule=schedule,
+                       resume=args.resume, show_progress=not args.no_progress, log=print)
+    print(f"total {res.total_seconds:.1f} s (load {os.getloadavg()[0]:.2f})")
+    return 0
+
+
 def register(subparsers) -> None:
-    """Add ``render`` and ``scene`` (``scene make``, ``scene info``) to an argparse subparsers object."""
+    """Add ``render`` and ``scene`` (``make``, ``info``, ``segment``, ``build``) to an argparse subparsers object."""
     p = subparsers.add_parser("render", help="render a splat scene (.ply) from a camera to .png or .npy")
     p.add_argument("scene", help="scene PLY file (reference 3DGS layout)")
     p.add_argument("--camera", required=True,
@@ -182,3 +228,24 @@ def register(subparsers) -> None:
     i.add_argument("--ignore-unknown-properties", action="store_true",
                    help="skip unknown PLY vertex properties instead of failing")
     i.set_defaults(func=_cmd_scene_info)
+    g = ssub.add_parser("segment", help="assign object ids to a scene by k-means on the splat centres (scipy)")
+    g.add_argument("scene", help="scene PLY file")
+    g.add_argument("--objects", type=int, required=True, help="number of objects (clusters)")
+    g.add_argument("--out", required=True, help="output PLY file (with object_id)")
+    g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    g.add_argument("--ignore-unknown-properties", action="store_true",
+                   help="skip unknown PLY vertex properties instead of failing")
+    g.set_defaults(func=_cmd_scene_segment)
+    b = ssub.add_parser("build", help="train a layered / separate / sort / distill / hierarchy bundle from a teacher")
+    b.add_argument("teacher", help="teacher scene PLY (reference 3DGS layout)")
+    b.add_argument("--cameras", required=True,
+                   help="training cameras: camera JSON list, NeRF/Blender transforms.json or COLMAP folder")
+    b.add_argument("--layers", required=True,
+                   help="cumulative sizes in splats, increasing, e.g. 45000,90000,135000,180000")
+    b.add_argument("--variant", required=True, choices=["layered", "separate", "sort", "distill", "hierarchy"])
+    b.add_argument("--out", required=True, help="bundle directory (manifest.json + chunks/)")
+    b.add_argument("--quick", action="store_true", help="small views and short training (demo, CI)")
+    b.add_argument("--resume", action="store_true", help="continue an interrupted build from its checkpoints")
+    b.add_argument("--max-width", type=int, default=None, help="training view width in pixels (overrides the schedule)")
+    b.add_argument("--no-progress", action="store_true", help="no progress bars")
+    b.set_defaults(func=_cmd_scene_build)

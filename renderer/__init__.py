@@ -1,4 +1,4 @@
-"""The bundled CPU splat renderer (PyTorch, differentiable), image metrics and procedural scenes.
+"""The bundled CPU splat renderer (PyTorch, differentiable), image metrics, procedural scenes and the trainer.
 
 Public API
 ----------
@@ -30,3 +30,16 @@ __all__ = ["render_gaussians", "render_scene", "scene_tensors", "RenderOutput",
            "project_gaussians", "covariances_from_params", "quat_to_rotmat", "Projection",
            "NEAR_PLANE", "TILE_SIZE", "rasterize", "Raster", "eval_sh", "sh_to_color",
            "psnr", "ssim", "MetricError", "HAVE_NUMBA"]
+
+# Trainer (Prune2TargetSize, ProgressiveTraining, significance, densification, SH distillation).
+from .densify import densify_and_prune, reset_opacity  # noqa: E402
+from .distill import distill_sh  # noqa: E402
+from .progressive import SizeError, check_sizes, progressive_training, prune_to_target_size, train_layer  # noqa: E402
+from .significance import global_significance, significance_order  # noqa: E402
+from .train import (LAMBDA_SSIM, TrainConfig, TrainResult, View, finetune, recovery, scene_extent,  # noqa: E402
+                    ssim_torch, teacher_views, train)
+
+__all__ += ["TrainConfig", "TrainResult", "View", "train", "recovery", "finetune", "teacher_views",
+            "scene_extent", "ssim_torch", "LAMBDA_SSIM", "global_significance", "significance_order",
+            "prune_to_target_size", "progressive_training", "train_layer", "check_sizes", "SizeError",
+            "densify_and_prune", "reset_opacity", "distill_sh"]
