@@ -36,6 +36,10 @@ _LAZY = {
     "cameras": ["CameraError", "Camera", "load_cameras", "save_cameras", "look_at"],
     "scene_make": ["make_scene"],
     "camera_paths": ["orbit_path", "walk_path"],
+    "bundle": ["BUNDLE_SCHEMA", "VARIANTS", "BundleError", "Bundle", "read_bundle", "write_bundle", "split_layers"],
+    "scene_build": ["BuildError", "BuildSchedule", "build_bundle"],
+    "segment": ["segment_scene"],
+    "scene_instance": ["instance_from_bundle"],
 }
 _LAZY_NAMES = {name: module for module, names in _LAZY.items() for name in names}
 

@@ -1,0 +1,108 @@
+"""``build_bundle`` / ``scene build``: every variant on a tiny scene, checkpoints and resume, size errors."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from l3gs_opt.bundle import read_bundle
+from l3gs_opt.cameras import save_cameras
+from l3gs_opt.cli_scene import register
+from l3gs_opt.renderer.progressive import SizeError
+from l3gs_opt.scene_build import BuildError, BuildSchedule, build_bundle
+from l3gs_opt.scene_io import write_ply
+from renderer_helpers import make_camera, random_scene
+
+TINY = BuildSchedule(max_width=24, prune_ratio=0.5, recovery_iterations=2, finetune_iterations=2,
+                     layer_iterations=2)
+SIZES = [8, 20, 30]
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("build")
+    scene = random_scene(40, sh_degree=1, seed=3, object_ids=True, log_scale=(-2.5, -1.2), logit=(0.0, 3.0))
+    cams = [make_camera(32, 24, eye=e) for e in [(0.3, -4.0, 1.2), (3.5, -1.5, 1.0), (-3.0, -2.5, 0.5)]]
+    write_ply(scene, tmp / "t.ply")
+    save_cameras(cams, tmp / "cams.json")
+    return tmp, scene, cams
+
+
+@pytest.mark.parametrize("variant", ["layered", "separate", "sort", "distill", "hierarchy"])
+def test_every_variant_builds_exact_sizes(setup, variant):
+    tmp, scene, cams = setup
+    res = build_bundle(tmp / "t.ply", cams, SIZES, variant, tmp / variant, schedule=TINY, show_progress=False)
+    b = read_bundle(tmp / variant)
+    m = b.manifest
+    assert m["variant"] == variant and m["segmented"]
+    sep = variant in ("separate", "hierarchy")
+    assert [lv["cumulative_splats"] for lv in m["levels"]] == SIZES
+    assert [lv["splats"] for lv in m["levels"]] == (SIZES if sep else [8, 12, 10])
+    for lvl, d in enumerate(SIZES):
+        assert b.scene(lvl).num_splats == d
+    assert m["build"]["train_resolution"] == [24, 18]
+    assert res.total_seconds > 0
+    if variant == "distill":
+        assert m["compact_sh_degree"] == 0
+        assert b.scene(2, sh_form="compact").sh_degree == 0 and b.scene(2).sh_degree == 1
+    if variant == "hierarchy":
+        for j in m["objects"]:
+            for lvl in (1, 2):
+                try:
+                    par = b.parents(lvl, j)
+                except Exception:
+                    continue  # object absent from this version
+                lower = [c for c in m["chunks"] if c["object"] == j and c["level"] == lvl - 1]
+                assert ((par >= -1) & (par < (lower[0]["splats"] if lower else 0))).all()
+                assert (par >= 0).all() or not lower
+
+
+def test_resume_skips_finished_stages(setup):
+    tmp, scene, cams = setup
+    out = tmp / "res"
+    build_bundle(tmp / "t.ply", cams, SIZES, "layered", out, schedule=TINY, show_progress=False)
+    state_path = out / ".build" / "state.json"
+    state = json.loads(state_path.read_text())
+    del state["done"]["layer_2"]  # as if interrupted before the last stage
+    state_path.write_text(json.dumps(state))
+    first = read_bundle(out).scene(1)
+    lines = []
+    build_bundle(tmp / "t.ply", cams, SIZES, "layered", out, schedule=TINY, show_progress=False, resume=True,
+                 log=lines.append)
+    assert [s for s in lines if "resumed" in s] == ["prune_30: resumed from checkpoint",
+                                                   "layer_0: resumed from checkpoint",
+                                                   "layer_1: resumed from checkpoint"]
+    assert any(s.startswith("layer_2: 30 splats") for s in lines)
+    again = read_bundle(out).scene(1)
+    assert again.means.tobytes() == first.means.tobytes()  # resumed layers are the checkpointed ones
+    with pytest.raises(BuildError, match="--resume: .* different sizes"):
+        build_bundle(tmp / "t.ply", cams, [8, 20], "layered", out, schedule=TINY, show_progress=False, resume=True)
+
+
+def _cli(*argv):
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args([str(a) for a in argv])
+    return args.func(args)
+
+
+@pytest.mark.parametrize("layers, msg", [("20,8", r"--layers\[1\]: 8 must be greater"),
+                                         ("0,8", r"--layers\[0\]: 0 must be > 0"),
+                                         ("8,41", r"--layers\[1\]: 41 is more than the 40 splats"),
+                                         ("8,x", r"--layers\[1\]: 'x' is not an integer")])
+def test_cli_bad_sizes(setup, layers, msg):
+    tmp, _, _ = setup
+    with pytest.raises(SizeError, match=msg):
+        _cli("scene", "build", tmp / "t.ply", "--cameras", tmp / "cams.json", "--layers", layers,
+             "--variant", "layered", "--out", tmp / "bad")
+
+
+def test_cli_build_quick(setup, capsys):
+    tmp, _, _ = setup
+    assert _cli("scene", "build", tmp / "t.ply", "--cameras", tmp / "cams.json", "--layers", "10,30",
+                "--variant", "sort", "--out", tmp / "cli", "--quick", "--no-progress") == 0
+    assert read_bundle(tmp / "cli").manifest["build"]["schedule"]["max_width"] == 128
+    assert "wrote" in capsys.readouterr().out
