@@ -46,6 +46,7 @@ def _window(text: str) -> tuple[int, int]:
 
 
 def _cmd_from_scene(args: argparse.Namespace) -> int:
+    from .instance import Options
     from .instance_io import save_instance
     from .poses import PoseMapping
     from .scene_instance import Z_UP_MAPPING, instance_from_bundle
@@ -54,7 +55,8 @@ def _cmd_from_scene(args: argparse.Namespace) -> int:
     instance = instance_from_bundle(args.bundle, args.path, args.trace, mbps=args.mbps, start=start, slots=length,
                                     predict=args.predict, samples_per_slot=args.samples_per_slot,
                                     mapping=Z_UP_MAPPING if args.up == "z" else PoseMapping(),
-                                    width=args.width, height=args.height, fov_deg=args.fov, progress=True)
+                                    width=args.width, height=args.height, fov_deg=args.fov,
+                                    options=Options(budget=args.budget), progress=True)
     path = save_instance(instance, args.output)
     print(f"wrote {path}: {instance!r}")
     return 0
@@ -90,7 +92,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
-    return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit, bench=not args.no_bench)
+    return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit, bench=not args.no_bench,
+                    scene=not args.no_scene)
 
 
 def _csv(text: str | None, kind: type = str) -> list | None:
@@ -237,6 +240,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--predict", action="store_true", help="utilities for the predicted viewports (pose logs)")
     f.add_argument("--samples-per-slot", type=int, default=4, help="viewpoints averaged per slot (pose logs)")
     f.add_argument("--up", default="z", choices=["y", "z"], help="the scene's up axis (pose logs are y up)")
+    f.add_argument("--budget", default="per_slot", choices=["per_slot", "cumulative"],
+                   help="cumulative: one link, unspent bytes carry over")
     f.add_argument("--width", type=int, default=800)
     f.add_argument("--height", type=int, default=600)
     f.add_argument("--fov", type=float, default=70.0, help="horizontal field of view, degrees")
@@ -302,6 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")
     d.add_argument("--time-limit", type=float, default=10.0, metavar="S", help="seconds per exact solve")
     d.add_argument("--no-bench", action="store_true", help="skip the quick benchmark (seconds instead of minutes)")
+    d.add_argument("--no-scene", action="store_true", help="skip the scene -> schedule -> picture step")
     d.set_defaults(func=_cmd_demo)
     return parser
 

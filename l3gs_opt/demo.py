@@ -53,7 +53,8 @@ def _quick_bench(out_dir: Path) -> None:
     print(f"\n  report with plots: {report}\n")
 
 
-def run_demo(out_dir: Path = Path("demo-out"), time_limit_s: float = 10.0, bench: bool = True) -> int:
+def run_demo(out_dir: Path = Path("demo-out"), time_limit_s: float = 10.0, bench: bool = True,
+             scene: bool = True) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     if bench:
         _quick_bench(out_dir)
@@ -91,5 +92,9 @@ def run_demo(out_dir: Path = Path("demo-out"), time_limit_s: float = 10.0, bench
         agree = all(abs(s.objective - best) <= 1e-6 * max(1.0, best) for s in exact)
         print(f"\n{len(exact)} proven optima of Problem {instance.problem} / its GAP form: "
               f"{'all agree' if agree else 'DISAGREE'} at {best:.6g} (Lemma 1: both forms have the same optimum)")
-    print(f"total {time.perf_counter() - started:.1f} s; records in {records}")
+    print(f"total {time.perf_counter() - started:.1f} s; records in {records}\n")
+    if scene:
+        from .demo_scene import scene_story
+
+        scene_story(out_dir / "scene", time_limit_s=time_limit_s)
     return 0

@@ -29,7 +29,7 @@ import numpy as np
 from .bundle import Bundle, read_bundle
 from .cameras import Camera, load_cameras
 from .errors import InstanceError
-from .instance import Instance
+from .instance import Instance, Options
 from .poses import PoseError, PoseMapping, PoseTrace, read_camera_path, read_pose_log
 from .predictors import predict_viewport, wrap_deg
 from .traces import mbps_to_bytes, read_bandwidth_trace
@@ -122,7 +122,8 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
                          mbps: float | None = 11.8, start: int = 0, slots: int = 60, slot_s: float = 1.0,
                          predict: bool = False, samples_per_slot: int = 4, hw_s: float = 0.5,
                          pose_start_s: float = 0.0, mapping: PoseMapping | None = None, width: int = 800,
-                         height: int = 600, fov_deg: float = 70.0, progress: bool = False) -> Instance:
+                         height: int = 600, fov_deg: float = 70.0, options: Options | None = None,
+                         progress: bool = False) -> Instance:
     """The instance of delivering ``bundle_path`` to a viewer on ``path`` over ``trace``.
 
     Parameters
@@ -139,6 +140,9 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
         The window: first trace sample and number of slots.
     predict : bool
         Utilities for the predicted viewports instead of the true ones (pose logs only).
+    options : Options, optional
+        The instance's options, e.g. ``Options(budget="cumulative")`` for one link whose unspent
+        bytes carry over (a chunk larger than one slot's bytes can then arrive).
     """
     from tqdm import tqdm
 
@@ -185,4 +189,4 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
         "window_mean_mbps": float(window.mbps.mean()), "objects": objects, "empty_chunks": empty,
     }
     return Instance(m["representation"], bandwidth=mbps_to_bytes(window.mbps, slot_s), cost=cost,
-                    utility=utility, slot_s=slot_s, meta=meta)
+                    utility=utility, slot_s=slot_s, options=options or Options(), meta=meta)

@@ -97,7 +97,8 @@ def test_console_script_installed():
 
 
 def test_demo_runs_and_reports(tmp_path, capsys):
-    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--time-limit", "10", "--no-bench")
+    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--time-limit", "10", "--no-bench",
+                         "--no-scene")
     assert code == 0, err
     assert "all agree" in out
     lines = (tmp_path / "demo" / "results.jsonl").read_text().splitlines()
@@ -112,3 +113,4 @@ def test_full_demo_with_quick_bench(tmp_path, capsys):
     assert "FLAGS" not in out
     report = (tmp_path / "demo" / "bench" / "report.md").read_text()
     assert "## Suite `pisinger`" in report and "error against run time" in report
+    assert "3. scene -> schedule -> picture" in out and (tmp_path / "demo" / "scene" / "scene-story.png").is_file()
