@@ -81,13 +81,20 @@ def main() -> int:
         "prepare_ms": prepare_ms,
         "utility_ms_median": 1000 * float(np.median(times)), "utility_ms_min": 1000 * float(np.min(times)),
         "utility_unprepared_ms_median": 1000 * float(np.median(unprepared)),
-        "goal_ms": 50, "loadavg": load,
-        "tables": [_table_figures(prepared, cams, 3, 12), _table_figures(prepared, cams, 4, 24)],
-        "machine": machine_info(),
+        "goal_ms": 50, "loadavg": load, "tables": [], "machine": machine_info(),
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "utility.json").write_text(json.dumps(result, indent=2) + "\n")
+
+    def save() -> None:  # after each step: a long run interrupted keeps what it measured
+        (out / "utility.json").write_text(json.dumps(result, indent=2) + "\n")
+
+    save()
+    # Same positions, twice the yaw resolution: how the error depends on the orientation grid.
+    for per_axis, yaw_steps in ((3, 12), (3, 24)):
+        result["tables"].append(_table_figures(prepared, cams, per_axis, yaw_steps))
+        result["tables"][-1]["loadavg"] = os.getloadavg()
+        save()
     print(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
     return 0
 
