@@ -258,11 +258,12 @@ def default_methods(spec: InstanceSpec, *, quick: bool = False) -> list[str]:
             # One generic MILP is reference enough at this size (the solvers benchmark races all four).
             methods = [m for m in methods if m not in ("ilp/cbc", "ilp/scip", "ilp/cpsat")]
     else:
-        methods = list(_MULTI_SLOT_METHODS)
+        # "exact": branch-and-price on the GAP form (layered, per-slot budgets only).
+        methods = [*_MULTI_SLOT_METHODS[:4], "exact", *_MULTI_SLOT_METHODS[4:]]
         if chunks * T > 10:
             methods.remove("brute")
         if params.get("representation") == "separate":
-            methods = [m for m in methods if not m.endswith("/gap")]
+            methods = [m for m in methods if not m.endswith("/gap") and m != "exact"]
         if quick:
             methods = [m for m in methods if m not in ("ilp/cpsat", "mpc:6")]
     return [m for m in methods if available(m)]

@@ -4,7 +4,9 @@ Single slot (the paper's Lemma 3 MCKP): exact branch-and-bound (``bb``) and DP (
 ``fptas:EPS`` approximation and the LP-greedy (``greedy``). Multi-slot (Problems I-IV):
 rolling-horizon schedulers (``rolling:SOLVER``, ``rolling-future:SOLVER``, ``mpc:H``) and the
 order heuristics (``progressive``, ``slope``, ``static``), each reporting the LP relaxation as
-a certified bound. Brute force is the reference every one of them is tested against.
+a certified bound. ``exact`` (Problems I/III) is branch-and-price on the GAP form: Lagrangian
+bounds with per-slot knapsacks, column generation, fixing and branching, certified gaps under a
+time limit. Brute force is the reference every one of them is tested against.
 """
 
 from .brute_force import MAX_SCHEDULES, solve_brute_force
@@ -12,6 +14,8 @@ from .bounds import lp_bound
 from .heuristics import slope_fractional_value, solve_progressive, solve_slope, solve_static
 from .mckp import solve_bb, solve_dp, solve_fptas, solve_greedy
 from .rolling import solve_mpc, solve_rolling
+from .exact import solve_exact
+from .lagrange import gap_data, lagrangian_value, lp_multipliers, subgradient
 
 __all__ = [
     "MAX_SCHEDULES",
@@ -27,4 +31,9 @@ __all__ = [
     "solve_rolling",
     "solve_slope",
     "solve_static",
+    "solve_exact",
+    "gap_data",
+    "lagrangian_value",
+    "lp_multipliers",
+    "subgradient",
 ]

@@ -1,0 +1,318 @@
+"""Dantzig-Wolfe column generation for Problem A: per-slot fillings priced by the knapsack solver.
+
+Master LP (restricted to a pool of columns; a column is one slot's set of arriving chunks)::
+
+    max  sum_c P_c lam_c
+    s.t. sum_{c in slot t} lam_c <= 1             (convexity; = 1 at a node that forces items into t)
+         sum_c a_ic lam_c <= 1                    (at most once, dual mu[i])
+         precedence rows (u, t) of Problem A      (dual pi[u,t]; added lazily when violated)
+         lam >= 0
+
+Every master solve yields multipliers ``(mu, pi)``; :func:`~.lagrange.lagrangian_value` at them
+prices new columns (one knapsack per slot) and *is* a valid upper bound (the Lasdon bound), so
+the bound never depends on the LP having converged. At convergence the master value equals the
+Lagrangian dual (the DW bound), at least as tight as the LP relaxation. Artificial columns
+(cost ``big_m``) keep the master feasible when branching forces chunks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lagrange import GapData, LagrangeValue, Multipliers, lagrangian_value, reduced_profits
+
+__all__ = ["ColumnPool", "Master", "CgResult", "column_generation"]
+
+#: A column enters the master when its reduced profit exceeds this fraction of the bound
+#: (smaller improvements are float noise of the LP's dual values).
+ENTER_TOL = 1e-9
+#: Precedence row violations below this (in LP units, rows have coefficients +-1) are LP noise.
+ROW_TOL = 1e-7
+
+
+class ColumnPool:
+    """Every column generated so far (shared by all nodes): slot, membership, profit."""
+
+    def __init__(self, data: GapData) -> None:
+        self.data = data
+        self.slot: list[int] = []
+        self.items: list[np.ndarray] = []
+        self.profit: list[float] = []
+        self._seen: set[tuple[int, bytes]] = set()
+
+    def __len__(self) -> int:
+        return len(self.slot)
+
+    def add(self, t: int, items: np.ndarray) -> int | None:
+        """Add slot t's filling ``items`` (over budget or duplicate: ignored); its index or None."""
+        items = np.unique(np.asarray(items, dtype=np.int64))
+        key = (int(t), items.tobytes())
+        if key in self._seen or int(self.data.cost[items].sum()) > int(self.data.budget[t]):
+            return None
+        if len(items) and not self.data.allowed[items, t].all():
+            return None
+        self._seen.add(key)
+        self.slot.append(int(t))
+        self.items.append(items)
+        self.profit.append(math.fsum(self.data.profit[items, t].tolist()))
+        return len(self.slot) - 1
+
+    def add_assignment(self, assign: np.ndarray) -> None:
+        for t in range(self.data.T):
+            self.add(t, np.nonzero(assign == t)[0])
+
+
+@dataclass(eq=False)
+class CgResult:
+    """Outcome of column generation at one node."""
+
+    bound: float                 #: best valid Lagrangian bound seen
+    mult: Multipliers            #: multipliers of that bound
+    value: LagrangeValue         #: the Lagrangian value there (knapsack solutions, reduced profits)
+    master: float                #: last master LP value
+    xbar: np.ndarray             #: [n, T] master solution in x terms
+    converged: bool              #: no column prices out and no precedence row is violated
+    iterations: int
+    infeasible: bool = False     #: the node's forcings admit no schedule
+
+
+class Master:
+    """The restricted master LP of one node (HiGHS), rebuilt from the pool for the node."""
+
+    def __init__(self, data: GapData, pool: ColumnPool, rows: list[tuple[int, int]], *, allowed: np.ndarray,
+                 forced: dict[int, int], big_m: float) -> None:
+        import highspy
+
+        self.data, self.pool, self.allowed, self.forced, self.big_m = data, pool, allowed, forced, big_m
+        self.h = highspy.Highs()
+        self.h.setOptionValue("output_flag", False)
+        self.inf = highspy.kHighsInf
+        n, T = data.n, data.T
+        self.forced_by_slot: dict[int, set[int]] = {}
+        for i, t in forced.items():
+            self.forced_by_slot.setdefault(t, set()).add(i)
+        # Rows: once [0, n), convexity [n, n + T), precedence after.
+        lower = np.full(n + T, -self.inf)
+        upper = np.ones(n + T)
+        for t in self.forced_by_slot:
+            lower[n + t] = 1.0
+        self.h.addRows(n + T, lower, upper, 0, np.zeros(n + T, np.int32), np.zeros(0, np.int32), np.zeros(0))
+        self.rows: list[tuple[int, int]] = []
+        self.row_index: dict[tuple[int, int], int] = {}
+        self.cols: list[int] = []          # pool index of each master column (-1: artificial)
+        # Artificial columns for forced slots' convexity rows (keeps the LP feasible).
+        for t in self.forced_by_slot:
+            self._add_raw(-1, [n + t], [1.0], big_m)
+        self.add_columns([c for c in range(len(pool)) if self.compatible(c)])
+        self.add_rows(rows)
+
+    # -- building --------------------------------------------------------------------------
+    def compatible(self, c: int) -> bool:
+        t, items = self.pool.slot[c], self.pool.items[c]
+        if len(items) and not self.allowed[items, t].all():
+            return False
+        need = self.forced_by_slot.get(t)
+        return not need or need.issubset(items.tolist())
+
+    def _add_raw(self, pool_index: int, idx: list[int], val: list[float], cost: float) -> None:
+        self.h.addCol(float(cost), 0.0, self.inf, len(idx), np.asarray(idx, np.int32), np.asarray(val, np.float64))
+        self.cols.append(pool_index)
+
+    def _entries(self, c: int) -> tuple[list[int], list[float]]:
+        data, t, items = self.data, self.pool.slot[c], self.pool.items[c]
+        n = data.n
+        coef: dict[int, float] = {int(i): 1.0 for i in items}
+        coef[n + t] = 1.0
+        d = 1 if data.strict else 0
+        for i in items.tolist():
+            for (u, tt), r in self._rows_of.get(i, ()):
+                if tt >= t:
+                    coef[r] = coef.get(r, 0.0) + 1.0
+            up = int(data.upper[i])
+            if up >= 0:
+                for (u, tt), r in self._rows_of.get(up, ()):
+                    if tt >= t + d:
+                        coef[r] = coef.get(r, 0.0) - 1.0
+        keys = [k for k, v in coef.items() if v != 0.0]
+        return keys, [coef[k] for k in keys]
+
+    @property
+    def _rows_of(self) -> dict[int, list]:
+        if not hasattr(self, "_rows_of_cache"):
+            self._rows_of_cache: dict[int, list] = {}
+        return self._rows_of_cache
+
+    def add_columns(self, pool_indices: list[int]) -> None:
+        if not pool_indices:
+            return
+        starts, idx, val, costs = [], [], [], []
+        for c in pool_indices:
+            keys, vals = self._entries(c)
+            starts.append(len(idx))
+            idx.extend(keys)
+            val.extend(vals)
+            costs.append(-self.pool.profit[c])   # HiGHS minimises: cost = -profit
+            self.cols.append(c)
+        m = len(pool_indices)
+        self.h.addCols(m, np.asarray(costs), np.zeros(m), np.full(m, self.inf), len(idx),
+                       np.asarray(starts, np.int32), np.asarray(idx, np.int32), np.asarray(val, np.float64))
+
+    def add_rows(self, rows: list[tuple[int, int]]) -> None:
+        rows = [r for r in rows if r not in self.row_index]
+        if not rows:
+            return
+        data = self.data
+        d = 1 if data.strict else 0
+        slots = np.array([self.pool.slot[c] if c >= 0 else data.T for c in self.cols], dtype=np.int64)
+        member = {}
+        starts, idx, val = [], [], []
+        base = self.h.getNumRow()
+        for k, (u, t) in enumerate(rows):
+            lo = int(data.lower[u])
+            coef: dict[int, float] = {}
+            for pos, c in enumerate(self.cols):
+                if c < 0 or slots[pos] > t:
+                    continue
+                s = member.get(c)
+                if s is None:
+                    s = member[c] = set(self.pool.items[c].tolist())
+                v = (1.0 if u in s else 0.0) - (1.0 if lo in s and slots[pos] <= t - d else 0.0)
+                if v:
+                    coef[pos] = v
+            starts.append(len(idx))
+            idx.extend(coef)
+            val.extend(coef.values())
+            self.row_index[(u, t)] = base + k
+            self._rows_of.setdefault(u, []).append(((u, t), base + k))
+            self.rows.append((u, t))
+        m = len(rows)
+        self.h.addRows(m, np.full(m, -self.inf), np.zeros(m), len(idx), np.asarray(starts, np.int32),
+                       np.asarray(idx, np.int32), np.asarray(val, np.float64))
+        # Artificial slack per row (big-M), so forcing an upper layer never makes the LP infeasible.
+        for (u, t) in rows:
+            if u in self.forced:
+                self._add_raw(-1, [self.row_index[(u, t)]], [-1.0], self.big_m)
+
+    # -- solving ---------------------------------------------------------------------------
+    def solve(self) -> tuple[float, Multipliers, np.ndarray]:
+        """Solve; (master value with the held constant, multipliers >= 0, lam per master column)."""
+        self.h.run()
+        sol = self.h.getSolution()
+        data = self.data
+        dual = -np.asarray(sol.row_dual)          # max-form multipliers
+        lam = np.asarray(sol.col_value)
+        mu = np.maximum(0.0, dual[:data.n])
+        pi = np.zeros((data.n, data.T))
+        for (u, t), r in self.row_index.items():
+            pi[u, t] = max(0.0, dual[r])
+        value = self.data.constant - float(self.h.getInfo().objective_function_value)
+        self.rho = dual[data.n:data.n + data.T]      # convexity duals (for reduced costs)
+        return value, Multipliers(mu, pi), lam
+
+    def xbar(self, lam: np.ndarray) -> np.ndarray:
+        """``[n, T]``: the master solution in arrival terms (artificials contribute nothing)."""
+        x = np.zeros((self.data.n, self.data.T))
+        for pos in np.nonzero(lam > 1e-12)[0]:
+            c = self.cols[pos]
+            if c >= 0:
+                x[self.pool.items[c], self.pool.slot[c]] += lam[pos]
+        return x
+
+    def violated_rows(self, x: np.ndarray) -> list[tuple[int, int]]:
+        data = self.data
+        has = np.nonzero(data.lower >= 0)[0]
+        if len(has) == 0:
+            return []
+        cum = np.cumsum(x, axis=1)
+        lo = cum[data.lower[has]]
+        if data.strict:
+            lo = np.concatenate([np.zeros((len(has), 1)), lo[:, :-1]], axis=1)
+        viol = cum[has] - lo > ROW_TOL
+        uu, tt = np.nonzero(viol)
+        return [(int(has[a]), int(b)) for a, b in zip(uu, tt) if (int(has[a]), int(b)) not in self.row_index]
+
+
+def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int]], *, allowed: np.ndarray,
+                      forced: dict[int, int], incumbent: float, time_limit_s: float | None = None,
+                      max_iterations: int = 500, stall_iterations: int = 12, start_bound: float = math.inf,
+                      trace: list | None = None, clock0: float | None = None, smoothing: float = 0.5,
+                      start: tuple[Multipliers, LagrangeValue] | None = None) -> CgResult:
+    """Column generation at a node until converged, stalled, pruned (bound <= incumbent) or out of time.
+
+    ``rows`` (precedence rows (u, t) known so far) is extended in place with the rows found
+    violated, so later nodes start with them. ``trace`` gets ``(seconds since clock0, bound)``.
+    ``start`` (multipliers and their Lagrangian value) is the first smoothing centre and bound.
+    """
+    started = time.perf_counter()
+    clock0 = started if clock0 is None else clock0
+    big_m = 10.0 * (float(data.profit.max(axis=1).sum()) + 1.0)
+    master = Master(data, pool, rows, allowed=allowed, forced=forced, big_m=big_m)
+    best, best_mult, best_val = start_bound, None, None
+    if start is not None:   # e.g. the LP duals: the first stability centre
+        best_mult, best_val = start
+        best = min(best, best_val.bound)
+    history: list[float] = []
+    value, xbar, converged, it = -math.inf, np.zeros((data.n, data.T)), False, 0
+    for it in range(1, max_iterations + 1):
+        if best_val is not None and time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+            break
+        value, mult, lam = master.solve()
+        xbar = master.xbar(lam)
+        new_rows = master.violated_rows(xbar)
+        if new_rows:
+            master.add_rows(new_rows)
+            rows.extend(new_rows)
+            continue
+        # Wentges smoothing: price at a point between the best multipliers so far and the
+        # master's; any point gives a valid bound. A mis-price (no column improves the master)
+        # falls back to the master's duals.
+        red_master = reduced_profits(data, mult)
+        if allowed is not None:
+            red_master = np.where(allowed, red_master, -np.inf)
+        points = [mult]
+        if best_mult is not None and smoothing > 0:
+            points.insert(0, Multipliers(smoothing * best_mult.mu + (1 - smoothing) * mult.mu,
+                                         smoothing * best_mult.pi + (1 - smoothing) * mult.pi))
+        added = []
+        for point in points:
+            lv = lagrangian_value(data, point, allowed=allowed, forced=forced)
+            if lv.bound == -math.inf:
+                return CgResult(-math.inf, point, lv, value, xbar, True, it, infeasible=True)
+            if lv.bound < best or best_val is None:
+                if lv.bound < best:
+                    best = lv.bound
+                best_mult, best_val = point, lv
+            scale = ENTER_TOL * max(abs(best), 1.0)
+            for t in range(data.T):
+                items = np.nonzero(lv.x[:, t])[0]
+                rc = float(red_master[items, t].sum()) - float(master.rho[t]) if len(items) else -float(master.rho[t])
+                if rc > scale:
+                    c = pool.add(t, items)
+                    if c is not None:
+                        added.append(c)
+            if added:
+                break
+        if trace is not None:
+            trace.append((time.perf_counter() - clock0, best))
+        added = [c for c in added if master.compatible(c)]
+        gap = best - value
+        if best <= incumbent or gap <= ENTER_TOL * max(abs(best), 1.0) or not added:
+            converged = gap <= ENTER_TOL * max(abs(best), 1.0) or not added
+            break
+        history.append(best)
+        if len(history) > stall_iterations and history[-stall_iterations - 1] - best <= 1e-6 * abs(best):
+            break
+        if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+            break
+        master.add_columns(added)
+    if best_val is None:   # stopped before pricing once: price at the last duals
+        value, mult, lam = master.solve()
+        xbar = master.xbar(lam)
+        best_val = lagrangian_value(data, mult, allowed=allowed, forced=forced)
+        best_mult = mult
+        best = min(best, best_val.bound)
+    return CgResult(best, best_mult, best_val, value, xbar, converged, it)

@@ -1,0 +1,478 @@
+"""``exact``: Problems I/III on Problem A (the GAP form) by decomposition, with certified gaps.
+
+1. **Primal start**: the best of the heuristics (``rolling-future:bb``, ``slope``, ``rolling:bb``,
+   and ``mpc:3`` on small scenes), then local search (move a chunk to an earlier slot, insert,
+   swap two chunks between slots or out of the schedule), always feasible in integer bytes.
+2. **Bounds**: the LP relaxation of Problem A (HiGHS) gives the first multipliers; then
+   Dantzig-Wolfe column generation over per-slot fillings (:mod:`.colgen`), priced by the exact
+   single-slot knapsack solver and stabilised around the best multipliers. Every pricing round
+   is a Lagrangian bound with the linking rows (at most once, precedence) dualised
+   (:mod:`.lagrange`), valid whatever the LP did; the answer carries the best of them.
+3. **Lagrangian-guided repair**: the LP solution, the master solution and the knapsack fillings
+   are rounded into schedules, then local search and a window LNS (:mod:`.lns`: a few slots
+   re-solved exactly as a small MIP, the rest fixed).
+4. **Closing the gap**: reduced-cost fixing (a chunk whose forced arrival in slot t cannot beat
+   the incumbent under the knapsack's LP bound is removed from t), then branching:
+   ``branching="hybrid"`` (default) - HiGHS branch-and-cut on Problem A reduced by that fixing,
+   cut off at the incumbent; ``branching="price"`` - our own best-first branch-and-price on
+   ``x[i,t]`` with column generation (Lagrangian bounds) and fixing at every node.
+
+A time limit returns the best schedule with a valid bound, status ``time_limit``; ``optimal``
+only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` says which bound
+the answer carries. Supported: layered instances (Problems I, III) with per-slot budgets, either
+availability, same-slot or strict layers. Rejected with a :class:`~l3gs_opt.errors.SolveError`:
+the separate representation (Problems II/IV) and the ``cumulative`` budget (see
+:func:`.lagrange.check_supported`); use ``ilp`` for those.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+import time
+from typing import Any, Mapping
+
+import numpy as np
+
+from l3gs_opt.errors import SolveError
+from l3gs_opt.instance import Instance
+from l3gs_opt.solution import GAP_TOL, Solution, Status, finish_solution
+
+from .colgen import ColumnPool, column_generation
+from . import lagrange
+from .lns import reduced_mip, window_sweep
+from .lagrange import GapData, LagrangeValue, assignment_feasible, assignment_value, gap_data
+
+__all__ = ["solve_exact", "local_search", "round_schedule", "reduced_cost_fixing"]
+
+#: Heuristics the primal side starts from (``mpc:3`` is added when J * L <= MPC_MAX_CHUNKS).
+START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb")
+MPC_MAX_CHUNKS = 100
+#: How the gap is closed after the root: ``hybrid`` - HiGHS branch-and-cut on the model reduced
+#: by Lagrangian fixing, cut off at the incumbent; ``price`` - our own best-first branching on
+#: x[i,t] with column generation (Lagrangian bounds) at every node.
+BRANCHING = ("hybrid", "price")
+#: A node is closed when its bound is within this relative distance of the incumbent: below
+#: GAP_TOL so that a closed tree certifies an optimal gap.
+CLOSE_TOL = 0.1 * GAP_TOL
+
+
+def _closed(bound: float, z: float) -> bool:
+    return bound <= z + CLOSE_TOL * max(abs(bound), 1e-300)
+
+
+# -- primal side -----------------------------------------------------------------------------
+
+def _spare(data: GapData, assign: np.ndarray) -> np.ndarray:
+    spent = np.zeros(data.T, dtype=np.int64)
+    on = assign >= 0
+    np.add.at(spent, assign[on], data.cost[on])
+    return data.budget - spent
+
+
+def local_search(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, forced: Mapping[int, int] | None = None,
+                 deadline: float | None = None, max_swaps: int = 2000) -> np.ndarray:
+    """Improve a feasible assignment (slot per item, -1 never) without breaking it.
+
+    Moves: a chunk to the earliest slot that fits (``P[i,t]`` never grows with t, so earlier is
+    never worse), an unscheduled chunk in; then the best exchange of two chunks (one moving
+    earlier into the other's slot, the other later or out), repeated. Forced chunks stay put.
+    """
+    assign = assign.copy()
+    forced = forced or {}
+    n, T = data.n, data.T
+    d = 1 if data.strict else 0
+    frozen = np.zeros(n, dtype=bool)
+    frozen[list(forced)] = True
+    spare = _spare(data, assign)
+    profit_ext = np.concatenate([data.profit, np.zeros((n, 1))], axis=1)   # slot T = never
+    allowed_ext = np.concatenate([allowed, np.ones((n, 1), bool)], axis=1)
+    cost = data.cost
+    lower, upper = data.lower, data.upper
+    order = np.argsort(-data.profit.max(axis=1, initial=0.0), kind="stable")
+    if n == 0:
+        return assign
+    for _ in range(max_swaps):
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+        # 1. earliest-slot moves and insertions, until none applies.
+        moved = True
+        while moved:
+            moved = False
+            for i in order:
+                if frozen[i]:
+                    continue
+                lo = lower[i]
+                if lo >= 0 and assign[lo] < 0:
+                    continue
+                first = assign[lo] + d if lo >= 0 else 0
+                cur = assign[i] if assign[i] >= 0 else T
+                if cur <= first:
+                    continue
+                up = upper[i]
+                last = cur if (up < 0 or assign[up] < 0) else min(cur, assign[up] - d + 1)
+                ok = allowed[i, first:last] & (spare[first:last] >= cost[i])
+                if not ok.any():
+                    continue
+                t = first + int(np.argmax(ok))
+                if profit_ext[i, t] <= profit_ext[i, cur]:
+                    continue
+                if assign[i] >= 0:
+                    spare[assign[i]] += cost[i]
+                spare[t] -= cost[i]
+                assign[i] = t
+                moved = True
+        # 2. best exchange: k moves into i's slot a, i moves to k's slot b > a (or out: b = T).
+        slot = np.where(assign >= 0, assign, T)
+        a = slot[:, None]                       # i's slot (rows)
+        b = slot[None, :]                       # k's slot (columns)
+        ar = np.arange(n)
+        aa, bb = np.broadcast_to(a, (n, n)), np.broadcast_to(b, (n, n))
+        kk, ii = ar[None, :], ar[:, None]
+        delta = profit_ext[kk, aa] + profit_ext[ii, bb] - profit_ext[ii, aa] - profit_ext[kk, bb]
+        spare_ext = np.concatenate([spare, [np.iinfo(np.int64).max // 4]])   # slot T (never): no budget
+        ok = (a < b) & (a < T)
+        ok &= spare_ext[aa] + cost[:, None] - cost[None, :] >= 0
+        ok &= spare_ext[bb] + cost[None, :] - cost[:, None] >= 0
+        ok &= allowed_ext[kk, aa] & allowed_ext[ii, bb]
+        ok &= ~frozen[:, None] & ~frozen[None, :]
+        ok &= data.item_j[:, None] != data.item_j[None, :]
+        # k into a: its lower layer there by a - d, its upper layer (if scheduled) from a + d.
+        lo_k = np.where(lower >= 0, slot[np.maximum(lower, 0)], -T - 1)
+        ok &= (lower[None, :] < 0) | (lo_k[None, :] <= a - d)
+        up_k = np.where(upper >= 0, slot[np.maximum(upper, 0)], T + 1)
+        ok &= (up_k[None, :] >= a + d) | (up_k[None, :] >= T)
+        # i into b: its upper layer not before b + d (never, when i leaves the schedule).
+        up_i = np.where(upper >= 0, slot[np.maximum(upper, 0)], T + 1)
+        ok &= np.where(b >= T, up_i[:, None] >= T, up_i[:, None] >= b + d)
+        delta = np.where(ok, delta, 0.0)
+        best = int(np.argmax(delta))
+        i, k = divmod(best, n)
+        if delta[i, k] <= 1e-12 * max(1.0, float(np.abs(data.profit).max(initial=0.0))):
+            break
+        ai, bk = int(slot[i]), int(slot[k])
+        spare[ai] += cost[i] - cost[k]
+        if bk < T:
+            spare[bk] += cost[k] - cost[i]
+        assign[k] = ai
+        assign[i] = bk if bk < T else -1
+    return assign
+
+
+def round_schedule(data: GapData, score: np.ndarray, allowed: np.ndarray, *,
+                   forced: Mapping[int, int] | None = None) -> np.ndarray:
+    """Greedy schedule from per-(item, slot) scores (e.g. the master solution): take the pairs
+    in descending score (ties: more profit first) when they fit and keep layer order."""
+    n, T = data.n, data.T
+    d = 1 if data.strict else 0
+    assign = np.full(n, -1, dtype=np.int64)
+    spare = data.budget.copy()
+    for i, t in (forced or {}).items():
+        assign[i] = t
+        spare[t] -= data.cost[i]
+    ii, tt = np.nonzero((score > 0) & allowed)
+    order = np.lexsort((-data.profit[ii, tt], -score[ii, tt]))
+    pending = list(zip(ii[order].tolist(), tt[order].tolist()))
+    for _ in range(data.item_l.max(initial=0) + 2):   # lower layers may come later in the order
+        rest = []
+        for i, t in pending:
+            if assign[i] >= 0:
+                continue
+            lo, up = data.lower[i], data.upper[i]
+            if (lo >= 0 and (assign[lo] < 0 or assign[lo] > t - d)) or spare[t] < data.cost[i] or \
+                    (up >= 0 and 0 <= assign[up] < t + d):
+                rest.append((i, t))
+                continue
+            assign[i] = t
+            spare[t] -= data.cost[i]
+        if len(rest) == len(pending):
+            break
+        pending = rest
+    return assign
+
+
+# -- reduced-cost fixing -----------------------------------------------------------------------
+
+def reduced_cost_fixing(data: GapData, lv: LagrangeValue, bound: float, incumbent: float,
+                        allowed: np.ndarray) -> np.ndarray:
+    """``allowed`` minus the pairs (i, t) whose forced arrival cannot beat ``incumbent``.
+
+    Forcing i into slot t changes the Lagrangian bound to at most ``bound - K_t + p~[i,t] +
+    LPK_t(B_t - c_i)``, with ``LPK_t`` the LP (Dantzig) bound of slot t's knapsack (an upper
+    bound on the knapsack left after i). ``bound`` must be ``lv``'s bound.
+    """
+    out = allowed.copy()
+    red = lv.reduced
+    for t in range(data.T):
+        cand = np.nonzero(allowed[:, t])[0]
+        if len(cand) == 0:
+            continue
+        col = red[:, t]
+        pos = np.nonzero((col > 0) & allowed[:, t])[0]
+        ratio = col[pos] / data.cost[pos]
+        o = pos[np.argsort(-ratio, kind="stable")]
+        cum_c = np.r_[0.0, np.cumsum(data.cost[o].astype(np.float64))]
+        cum_v = np.r_[0.0, np.cumsum(col[o])]
+        cap = (data.budget[t] - data.cost[cand]).astype(np.float64)
+        lpk = np.interp(np.maximum(cap, 0.0), cum_c, cum_v)
+        forced_bound = bound - lv.slot_bound[t] + col[cand] + lpk
+        # Margin for the float error of this estimate (cum sums of at most n terms).
+        margin = 8 * (data.n + data.T) * np.finfo(float).eps * (abs(bound) + float(np.abs(cum_v).max(initial=0)))
+        drop = (forced_bound + margin < incumbent) | (cap < 0)
+        out[cand[drop], t] = False
+    return out
+
+
+def _propagate(data: GapData, allowed: np.ndarray, forced: Mapping[int, int]) -> np.ndarray | None:
+    """A node's arrival mask: forced items only in their slot, their lower layers no later, their
+    upper layers no earlier. None when that leaves a forced item nowhere to go."""
+    allowed = allowed.copy()
+    d = 1 if data.strict else 0
+    T = data.T
+    for i, t in forced.items():
+        if not allowed[i, t]:
+            return None
+        allowed[i, :] = False
+        allowed[i, t] = True
+        lo, cap = data.lower[i], t - d
+        while lo >= 0:
+            allowed[lo, max(cap + 1, 0):] = False
+            if not allowed[lo].any():
+                return None
+            cap = int(np.nonzero(allowed[lo])[0].max()) - d
+            lo = data.lower[lo]
+        up, floor = data.upper[i], t + d
+        while up >= 0:
+            allowed[up, :min(floor, T)] = False
+            if up in forced and not allowed[up, forced[up]]:
+                return None
+            rows = np.nonzero(allowed[up])[0]
+            if len(rows) == 0:
+                break
+            floor = int(rows.min()) + d
+            up = data.upper[up]
+    return allowed
+
+
+# -- the solver ---------------------------------------------------------------------------------
+
+def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadline: float | None
+           ) -> tuple[np.ndarray, str, dict[str, float]]:
+    from l3gs_opt.api import solve
+
+    best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
+    best_val = assignment_value(data, best)
+    for name in heuristics:
+        left = None if deadline is None else deadline - time.perf_counter()
+        if left is not None and left <= 0:
+            break
+        sol = solve(instance, name, time_limit_s=left, options={"bound": False})
+        assign = data.assignment(instance, sol.arrivals)
+        if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
+            continue
+        value = assignment_value(data, assign)
+        values[name] = value
+        if value > best_val:
+            best, best_name, best_val = assign, name, value
+    return best, best_name, values
+
+
+def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
+                heuristics: tuple[str, ...] | None = None, max_nodes: int | None = None, lns_width: int = 8,
+                branching: str = "hybrid",
+                **_ignored: Any) -> Solution:
+    """Solve Problem I/III exactly (see the module doc) or stop at ``time_limit_s`` seconds.
+
+    Returns
+    -------
+    Solution
+        ``bound`` is the best certified bound (``details["bound_kind"]`` says which: the
+        column-generation Lagrangian bound, or the closed branch-and-bound tree); ``details``
+        holds the root bound, nodes, columns, fixings and a ``trace`` of (seconds, incumbent,
+        bound) for gap-against-time plots.
+
+    Raises
+    ------
+    SolveError
+        ``slot`` given, separate representation, cumulative budget.
+    """
+    started = time.perf_counter()
+    if slot is not None:
+        raise SolveError("method 'exact' schedules the whole horizon: slot does not apply (use 'bb' for one slot)")
+    if branching not in BRANCHING:
+        raise SolveError(f"branching = {branching!r} is not one of {', '.join(BRANCHING)}")
+    deadline = None if time_limit_s is None else started + float(time_limit_s)
+    data = gap_data(instance)
+    n, T = data.n, data.T
+    trace: list[tuple[float, float, float]] = []
+    details: dict[str, Any] = {"items": n, "slots": T, "presolve": dict(data.stats)}
+
+    def now() -> float:
+        return time.perf_counter() - started
+
+    def out_of_time() -> bool:
+        return deadline is not None and time.perf_counter() >= deadline
+
+    if heuristics is None:
+        heuristics = START_HEURISTICS + (("mpc:3",) if instance.J * instance.L <= MPC_MAX_CHUNKS else ())
+    # The heuristics get at most a fifth of the time limit.
+    h_deadline = None if deadline is None else started + 0.2 * float(time_limit_s)
+    assign, start_name, start_values = (_start(instance, data, heuristics, h_deadline) if n else
+                                        (np.full(0, -1, np.int64), "empty", {}))
+    details["start"] = {"best": start_name, "values": start_values}
+    allowed0 = data.allowed
+    assign = local_search(data, assign, allowed0, deadline=deadline)
+    z = assignment_value(data, assign)
+    details["after_local_search"] = z
+    pool = ColumnPool(data)
+    pool.add_assignment(assign)
+    rows: list[tuple[int, int]] = []
+    bound = math.inf
+    nodes = 0
+    bound_kind = "none"
+
+    def try_incumbent(cand: np.ndarray, allowed: np.ndarray, forced: Mapping[int, int]) -> None:
+        nonlocal assign, z
+        cand = local_search(data, cand, allowed, forced=forced, deadline=deadline, max_swaps=50)
+        if not assignment_feasible(data, cand):
+            return
+        value = assignment_value(data, cand)
+        if value > z:
+            assign, z = cand, value
+            pool.add_assignment(cand)
+
+    if n == 0:
+        bound, bound_kind = z, "no chunk can arrive"
+    else:
+        # Root LP: its duals are the first Lagrangian multipliers (and the stability centre of
+        # column generation), its solution is rounded into a schedule.
+        left = None if deadline is None else deadline - time.perf_counter()
+        lp_value, lp_mult, lp_x = lagrange.lp_multipliers(data, time_limit_s=left)
+        start_point = None
+        details["lp"] = {"value": lp_value, "seconds": now()}
+        if lp_mult is not None:
+            lv0 = lagrange.lagrangian_value(data, lp_mult)
+            start_point = (lp_mult, lv0)
+            details["lp"]["lagrangian_at_lp_duals"] = lv0.bound
+            try_incumbent(round_schedule(data, lp_x, allowed0), allowed0, {})
+            trace.append((now(), z, max(z, lv0.bound)))
+        # Root: column generation (a Lagrangian bound every round), then repair and fixing.
+        left = None if deadline is None else deadline - time.perf_counter()
+        # At most half of the time left: the primal side and the branching need the rest.
+        root = column_generation(data, pool, rows, allowed=allowed0, forced={}, incumbent=z,
+                                 time_limit_s=None if left is None else 0.5 * left,
+                                 max_iterations=100_000, stall_iterations=100_000, start=start_point)
+        bound = max(root.bound, z) if math.isfinite(root.bound) else z
+        bound_kind = "Lagrangian (column-generation duals; per-slot knapsacks solved exactly)"
+        details["root"] = {"bound": root.bound, "master_lp": root.master, "iterations": root.iterations,
+                           "converged": root.converged, "seconds": now(), "columns": len(pool),
+                           "precedence_rows": len(rows)}
+        try_incumbent(round_schedule(data, root.xbar, allowed0), allowed0, {})
+        try_incumbent(round_schedule(data, root.value.x.astype(float) + root.xbar, allowed0), allowed0, {})
+        trace.append((now(), z, bound))
+        # Window LNS from the repaired root schedule: at most a quarter of the time left.
+        if not _closed(bound, z):
+            left = None if deadline is None else deadline - time.perf_counter()
+            lns_deadline = None if left is None else time.perf_counter() + 0.25 * left
+            cand = window_sweep(data, assign, allowed0, width=lns_width, deadline=lns_deadline)
+            try_incumbent(cand, allowed0, {})
+            details["root"]["after_lns"] = z
+            trace.append((now(), z, bound))
+        allowed_root = reduced_cost_fixing(data, root.value, root.bound, z, allowed0)
+        details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())
+        details["root"]["incumbent"] = z
+        # Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask).
+        counter = itertools.count()
+        unresolved = -math.inf
+        heap: list = []
+        if branching == "hybrid" and not _closed(bound, z) and not out_of_time():
+            left = None if deadline is None else deadline - time.perf_counter()
+            outcome, cand, mip_bound = reduced_mip(data, allowed_root, z, time_limit_s=left, start=assign)
+            if cand is not None:
+                try_incumbent(cand, allowed0, {})
+            details["reduced_mip"] = {"outcome": outcome, "bound": mip_bound, "variables": int(allowed_root.sum())}
+            if outcome == "optimal":
+                bound = z
+                bound_kind = ("Lagrangian reduced-cost fixing, then HiGHS branch-and-cut on the reduced model "
+                              "(cut off at the incumbent): closed")
+            else:
+                if max(z, mip_bound) < bound:
+                    bound = max(z, mip_bound)
+                    bound_kind = "HiGHS dual bound on the model reduced by Lagrangian fixing"
+            trace.append((now(), z, bound))
+        elif not _closed(bound, z):
+            heap.append((-bound, next(counter), {}, allowed_root, root))
+        while branching == "price" and heap and not out_of_time() and (max_nodes is None or nodes < max_nodes):
+            neg, _, forced, allowed, pre = heapq.heappop(heap)
+            node_bound = -neg
+            if _closed(node_bound, z):
+                continue
+            nodes += 1
+            if pre is None:
+                mask = _propagate(data, allowed, forced)
+                if mask is None:
+                    continue
+                left = None if deadline is None else deadline - time.perf_counter()
+                cg = column_generation(data, pool, rows, allowed=mask, forced=forced, incumbent=z, time_limit_s=left,
+                                       start_bound=node_bound, stall_iterations=8)
+                if cg.infeasible:
+                    continue
+                node_bound = min(node_bound, cg.bound)
+                try_incumbent(round_schedule(data, cg.xbar, mask, forced=forced), mask, forced)
+                if out_of_time() and not _closed(node_bound, z):
+                    heapq.heappush(heap, (-node_bound, next(counter), forced, allowed, None))
+                    break
+            else:
+                mask, cg = allowed, pre
+            if _closed(node_bound, z):
+                continue
+            mask = reduced_cost_fixing(data, cg.value, cg.value.bound, z, mask) if cg.value.bound <= node_bound \
+                else mask
+            # Branch on the most fractional master value (ties: larger profit); when the master
+            # is integral, on a pair the knapsacks chose that the master did not.
+            x = cg.xbar
+            frac = np.minimum(x, 1.0 - x) * (mask & (x > 1e-6) & (x < 1 - 1e-6))
+            if frac.max(initial=0.0) > 0:
+                score = frac * (1.0 + data.profit / (data.profit.max() + 1e-300))
+                i, t = np.unravel_index(int(np.argmax(score)), score.shape)
+            else:
+                diff = cg.value.x & (x < 0.5) & mask
+                for i_f in forced:
+                    diff[i_f, :] = False
+                if not diff.any():
+                    diff = (x > 0.5) & mask
+                    for i_f in forced:
+                        diff[i_f, :] = False
+                if not diff.any():
+                    # Nothing left to branch on: keep the node's bound in the answer's bound.
+                    unresolved = max(unresolved, node_bound)
+                    continue
+                i, t = np.unravel_index(int(np.argmax(diff * (data.profit + 1.0))), diff.shape)
+            i, t = int(i), int(t)
+            child_one = dict(forced)
+            child_one[i] = t
+            mask_zero = mask.copy()
+            mask_zero[i, t] = False
+            heapq.heappush(heap, (-node_bound, next(counter), child_one, mask, None))
+            heapq.heappush(heap, (-node_bound, next(counter), dict(forced), mask_zero, None))
+            trace.append((now(), z, max(z, max((-h[0] for h in heap), default=z))))
+        if branching == "price" or nodes:
+            open_bound = max([-h[0] for h in heap if not _closed(-h[0], z)] + [unresolved], default=-math.inf)
+            if open_bound == -math.inf:
+                bound_kind = "branch-and-price tree closed (every node's Lagrangian bound <= incumbent)"
+            bound = min(max(z, open_bound), max(root.bound, z))
+        trace.append((now(), z, bound))
+    stopped = out_of_time() or (max_nodes is not None and nodes >= max_nodes)
+    gap = 0.0 if bound == z else (bound - z) / abs(bound) if bound else math.inf
+    if gap <= GAP_TOL:
+        status, message = Status.OPTIMAL, ""
+    elif stopped:
+        status = Status.TIME_LIMIT
+        message = f"stopped after {nodes} node(s): best schedule and a valid bound ({bound_kind})"
+    else:
+        status, message = Status.FEASIBLE, f"search ended without proof ({bound_kind})"
+    details.update({"bound_kind": bound_kind, "nodes": nodes, "columns": len(pool), "precedence_rows": len(rows),
+                    "trace": trace})
+    return finish_solution(instance, data.arrivals(assign), problem=instance.problem, method="exact", status=status,
+                           bound=bound, runtime_s=time.perf_counter() - started, message=message, details=details)

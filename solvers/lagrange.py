@@ -1,0 +1,449 @@
+"""Problem A (the GAP form) as arrays, and its Lagrangian relaxation with per-slot knapsacks.
+
+Problem A, for layered instances (Problems I and III)::
+
+    max  sum_{i,t} P[i,t] x[i,t]
+    s.t. sum_i c[i] x[i,t] <= B[t]                              (budget of slot t)
+         sum_t x[i,t] <= 1                                       (at most once; multiplier mu[i])
+         sum_{s<=t} x[u,s] - sum_{s<=t-d} x[lo(u),s] <= 0          (precedence; multiplier pi[u,t])
+
+where ``i`` runs over the chunks (j, l) presolve keeps, ``P[i,t]`` is the utility chunk i earns
+from arriving in slot t to the horizon (``dU~`` of DESIGN.md), ``lo(u)`` is the layer under u
+(when it is not held) and ``d`` is 0 (same-slot layers) or 1 (strict). Dualising the two
+linking families leaves one 0-1 knapsack per slot with reduced profits
+
+    p~[i,t] = P[i,t] - mu[i] - sum_{t'>=t} pi[i,t'] + sum_{t'>=t+d} pi[up(i),t'],
+
+solved exactly by the single-slot branch-and-bound (:func:`l3gs_opt.solvers._mckp.branch_and_bound`,
+one option per row). ``L(mu, pi) = sum_t max(0, K_t(p~)) + sum_i mu[i]`` is an upper bound on the
+optimum for every ``mu, pi >= 0`` (plus the held chunks' constant utility); because each
+knapsack is solved in integers it is at least as tight as the LP relaxation at its optimal
+multipliers.
+
+Options: ``availability="next_slot"`` shifts ``P`` by one slot, ``same_slot_layers=False`` sets
+``d = 1``. The ``cumulative`` budget couples the slots, so there is no per-slot knapsack: such
+instances, and the separate representation (Problems II/IV, whose objective is a max over
+versions), are rejected with a :class:`~l3gs_opt.errors.SolveError`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from l3gs_opt.errors import SolveError
+from l3gs_opt.instance import Instance
+from l3gs_opt.presolve import presolve
+
+from . import _mckp
+
+__all__ = ["GapData", "gap_data", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
+           "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible"]
+
+_EPS = np.finfo(np.float64).eps
+
+
+@dataclass(frozen=True, eq=False)
+class GapData:
+    """Problem A of a layered instance over the chunks presolve keeps.
+
+    Attributes
+    ----------
+    item_j, item_l : int arrays [n]
+        Object and layer of each chunk (items listed by object, then layer).
+    cost : int64 array [n]
+        Bytes of each chunk.
+    profit : float64 array [n, T]
+        ``P[i,t]``: utility earned by arriving in slot t (summed from the first slot it is shown
+        to the horizon); 0 where the chunk cannot arrive.
+    allowed : bool array [n, T]
+        Chunk i may arrive in slot t (presolve: it fits, its lower layer can be there by then).
+    lower, upper : int arrays [n]
+        The item of the layer below / above (-1: none, or the layer below is held).
+    strict : bool
+        Layer l must arrive strictly after layer l-1 (``same_slot_layers=False``).
+    budget : int64 array [T]
+        Bytes per slot.
+    constant : float
+        Utility of the held chunks over the horizon.
+    """
+
+    T: int
+    item_j: np.ndarray
+    item_l: np.ndarray
+    cost: np.ndarray
+    profit: np.ndarray
+    allowed: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    strict: bool
+    budget: np.ndarray
+    constant: float
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return int(self.cost.shape[0])
+
+    def arrivals(self, assign: np.ndarray) -> list[tuple[int, int, int]]:
+        """Arrivals ``(j, l, t)`` of an assignment (slot per item, -1 = never)."""
+        return [(int(self.item_j[i]), int(self.item_l[i]), int(assign[i])) for i in np.nonzero(assign >= 0)[0]]
+
+    def assignment(self, instance: Instance, arrivals) -> np.ndarray:
+        """The assignment (slot per item, -1 = never) of a schedule; chunks presolve dropped are
+        ignored (they add nothing and need no bytes in any optimal schedule)."""
+        index = {(int(j), int(l)): i for i, (j, l) in enumerate(zip(self.item_j, self.item_l))}
+        out = np.full(self.n, -1, dtype=np.int64)
+        for j, l, t in arrivals:
+            i = index.get((int(j), int(l)))
+            if i is not None:
+                out[i] = int(t)
+        return out
+
+
+def check_supported(instance: Instance, method: str = "exact") -> None:
+    """Raise :class:`SolveError` for what the per-slot decomposition cannot express."""
+    if not instance.layered:
+        raise SolveError(f"method {method!r}: the separate representation (Problem {instance.problem}) is not "
+                         "supported (its objective is a max over versions, not a sum over chunks); use method "
+                         "'ilp'")
+    if instance.options.budget == "cumulative":
+        raise SolveError(f"method {method!r}: budget 'cumulative' couples all slots, so the problem does not split "
+                         "into per-slot knapsacks; use method 'ilp'")
+
+
+def gap_data(instance: Instance) -> GapData:
+    """Problem A of a layered, per-slot-budget instance (see the module doc).
+
+    Raises
+    ------
+    SolveError
+        Separate representation or cumulative budget (see :func:`check_supported`).
+    """
+    check_supported(instance)
+    inst = instance
+    red = presolve(inst)
+    T = inst.T
+    shift = 1 if inst.options.availability == "next_slot" else 0
+    gain = np.moveaxis(red.gain, 0, -1)                    # [J, L, T]: value of "shown at t"
+    shown = np.zeros_like(gain)
+    shown[:, :, :T - shift] = gain[:, :, shift:]          # value of "arrived by t"
+    future = np.flip(np.cumsum(np.flip(shown, axis=2), axis=2), axis=2)
+    jj, ll = np.nonzero(red.active)
+    n = len(jj)
+    index = -np.ones((inst.J, inst.L), dtype=np.int64)
+    index[jj, ll] = np.arange(n)
+    lower = np.where(ll > 0, index[jj, np.maximum(ll - 1, 0)], -1)
+    upper = -np.ones(n, dtype=np.int64)
+    upper[lower[lower >= 0]] = np.nonzero(lower >= 0)[0]
+    allowed = red.arrive[jj, ll, :].copy()
+    # Presolve keeps the lower layer of every active layer active (or held); a chunk whose
+    # lower layer is neither is never deliverable.
+    orphan = (ll > 0) & (lower < 0) & ~inst.held[jj, np.maximum(ll - 1, 0)]
+    allowed[orphan] = False
+    profit = np.where(allowed, future[jj, ll, :], 0.0)
+    return GapData(T=T, item_j=jj.astype(np.int64), item_l=ll.astype(np.int64), cost=inst.cost[jj, ll].astype(np.int64),
+                   profit=profit, allowed=allowed, lower=lower.astype(np.int64), upper=upper,
+                   strict=not inst.options.same_slot_layers, budget=inst.bandwidth.astype(np.int64),
+                   constant=red.constant, stats=dict(red.stats))
+
+
+# -- schedules in item form ---------------------------------------------------------------------
+
+def assignment_value(data: GapData, assign: np.ndarray) -> float:
+    """Objective of an assignment (held constant included), as an exactly rounded sum."""
+    on = np.nonzero(assign >= 0)[0]
+    return math.fsum([data.constant, *data.profit[on, assign[on]].tolist()])
+
+
+def assignment_feasible(data: GapData, assign: np.ndarray, allowed: np.ndarray | None = None) -> bool:
+    """Budgets (integer bytes), precedence and the allowed mask hold."""
+    allowed = data.allowed if allowed is None else allowed
+    on = assign >= 0
+    if (on & ~allowed[np.arange(data.n), np.maximum(assign, 0)]).any():
+        return False
+    spent = [0] * data.T   # Python ints: exact bytes
+    for i in np.nonzero(on)[0]:
+        spent[assign[i]] += int(data.cost[i])
+    if any(spent[t] > int(data.budget[t]) for t in range(data.T)):
+        return False
+    has = data.lower >= 0
+    u = np.nonzero(has & on)[0]
+    lo = data.lower[u]
+    if (assign[lo] < 0).any():
+        return False
+    gap = assign[u] - assign[lo]
+    return bool((gap >= (1 if data.strict else 0)).all())
+
+
+# -- the Lagrangian ---------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class Multipliers:
+    """``mu`` [n] for at-most-once rows, ``pi`` [n, T] for precedence rows (row (u, t); 0 for
+    items without a lower layer). Both >= 0."""
+
+    mu: np.ndarray
+    pi: np.ndarray
+
+    @classmethod
+    def zeros(cls, data: GapData) -> "Multipliers":
+        return cls(np.zeros(data.n), np.zeros((data.n, data.T)))
+
+    def copy(self) -> "Multipliers":
+        return Multipliers(self.mu.copy(), self.pi.copy())
+
+
+@dataclass(eq=False)
+class LagrangeValue:
+    """``L(mu, pi)`` and the knapsack solutions behind it.
+
+    ``bound`` is valid (float round-off included); ``x`` [n, T] the per-slot knapsack choices;
+    ``slot_bound`` [T] each slot's knapsack bound (>= 0); ``exact`` whether every knapsack was
+    solved to optimality (else ``slot_bound`` is the solver's bound).
+    """
+
+    bound: float
+    x: np.ndarray
+    slot_bound: np.ndarray
+    reduced: np.ndarray
+    exact: bool
+
+
+def reduced_profits(data: GapData, mult: Multipliers) -> np.ndarray:
+    """``p~[i,t]`` (see the module doc), ``[n, T]``; ``-inf`` where the item may not arrive."""
+    # Only items with a lower layer have precedence rows: other entries of pi are ignored.
+    pi = np.where((data.lower >= 0)[:, None], mult.pi, 0.0)
+    suffix = np.flip(np.cumsum(np.flip(pi, axis=1), axis=1), axis=1)   # sum_{t'>=t} pi[i,t']
+    red = data.profit - mult.mu[:, None] - suffix
+    has_up = data.upper >= 0
+    if has_up.any():
+        up = suffix[data.upper[has_up]]
+        if data.strict:
+            up = np.concatenate([up[:, 1:], np.zeros((up.shape[0], 1))], axis=1)
+        red[has_up] += up
+    return np.where(data.allowed, red, -np.inf)
+
+
+def knapsack(cost: np.ndarray, value: np.ndarray, capacity: int, *,
+             time_limit_s: float | None = None) -> tuple[np.ndarray, float, bool]:
+    """0-1 knapsack by the single-slot branch-and-bound: (chosen positions, upper bound, optimal).
+
+    Items with value <= 0 or cost > capacity are never chosen. The bound is the solver's
+    (exact optimum plus its relative slack when optimal).
+    """
+    take = np.nonzero((value > 0) & (cost <= capacity))[0]
+    if len(take) == 0 or capacity <= 0:
+        return np.zeros(0, dtype=np.int64), 0.0, True
+    if int(cost[take].sum()) <= capacity:
+        return take, math.fsum(value[take].tolist()), True
+    table = _mckp.build_table(layered=False, cost=cost[take, None], gain=value[take, None],
+                              held=np.zeros((len(take), 1), bool), budget=int(capacity))
+    res = _mckp.branch_and_bound(table, time_limit_s=time_limit_s)
+    rows = table.rows[res.choice >= 0]
+    return take[rows], float(res.bound), bool(res.optimal)
+
+
+def lagrangian_value(data: GapData, mult: Multipliers, *, allowed: np.ndarray | None = None,
+                     forced: dict[int, int] | None = None) -> LagrangeValue:
+    """``L(mu, pi)`` with per-slot knapsacks solved exactly.
+
+    ``allowed`` narrows the arrivals (a branch-and-bound node); ``forced`` maps item -> slot
+    for items fixed to arrive there (their reduced profit is earned and their bytes reserved).
+    Returns ``bound = -inf`` when the forced items of a slot exceed its budget.
+    """
+    red = reduced_profits(data, mult)
+    if allowed is not None:
+        red = np.where(allowed, red, -np.inf)
+    forced = forced or {}
+    T = data.T
+    x = np.zeros((data.n, T), dtype=bool)
+    slot_bound = np.zeros(T)
+    exact = True
+    magnitude = float(mult.mu.sum())
+    by_slot: dict[int, list[int]] = {}
+    for i, t in forced.items():
+        by_slot.setdefault(t, []).append(i)
+    for t in range(T):
+        fixed = by_slot.get(t, [])
+        cap = int(data.budget[t]) - sum(int(data.cost[i]) for i in fixed)
+        if cap < 0:
+            return LagrangeValue(-math.inf, x, slot_bound, red, True)
+        col = red[:, t].copy()
+        base = math.fsum(col[fixed].tolist()) if fixed else 0.0
+        col[fixed] = -np.inf
+        chosen, value, optimal = knapsack(data.cost, col, cap)
+        exact &= optimal
+        x[chosen, t] = True
+        x[fixed, t] = True
+        # Without forced items an empty slot is always possible: the slot's value is >= 0.
+        slot_bound[t] = base + value if fixed else max(0.0, value)
+        magnitude += float(np.abs(col[chosen]).sum()) + abs(base)
+    # Round-off: each p~ is a sum of at most T + 3 terms, each slot a sum of at most n terms.
+    slack = 4 * (data.T + data.n + 4) * _EPS * (magnitude + float(np.abs(data.profit).max(initial=0.0)))
+    bound = math.fsum([data.constant, *slot_bound.tolist(), *mult.mu.tolist()]) + slack
+    return LagrangeValue(bound, x, slot_bound, red, exact)
+
+
+def _subgradient(data: GapData, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row activities of the dualised rows at the knapsack solution: (once - 1, precedence)."""
+    g_mu = x.sum(axis=1) - 1.0
+    cum = np.cumsum(x, axis=1).astype(np.float64)
+    g_pi = np.zeros_like(cum)
+    has = data.lower >= 0
+    lo = cum[data.lower[has]]
+    if data.strict:
+        lo = np.concatenate([np.zeros((lo.shape[0], 1)), lo[:, :-1]], axis=1)
+    g_pi[has] = cum[has] - lo
+    return g_mu, g_pi
+
+
+def subgradient(data: GapData, *, target: float, start: Multipliers | None = None, iterations: int = 200,
+                time_limit_s: float | None = None, allowed: np.ndarray | None = None,
+                forced: dict[int, int] | None = None,
+                trace: list | None = None) -> tuple[float, Multipliers, LagrangeValue]:
+    """Minimise ``L(mu, pi)`` by the subgradient method with Polyak steps towards ``target``
+    (a lower bound on the optimum, e.g. the incumbent's value).
+
+    Returns the best bound, its multipliers and the value at them. ``trace`` (if given) gets
+    ``(seconds, bound)`` after every iteration.
+    """
+    started = time.perf_counter()
+    mult = start.copy() if start is not None else Multipliers(np.zeros(data.n), np.zeros((data.n, data.T)))
+    best_val = lagrangian_value(data, mult, allowed=allowed, forced=forced)
+    best, best_mult = best_val.bound, mult.copy()
+    val = best_val
+    theta, stall = 1.0, 0
+    has = (data.lower >= 0)[:, None]
+    for _ in range(iterations):
+        if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+            break
+        g_mu, g_pi = _subgradient(data, val.x)
+        # Only the directions that can move count (a multiplier at 0 with a negative row activity stays).
+        g_mu = np.where((mult.mu <= 0) & (g_mu < 0), 0.0, g_mu)
+        g_pi = np.where(has & ~((mult.pi <= 0) & (g_pi < 0)), g_pi, 0.0)
+        norm = float((g_mu ** 2).sum() + (g_pi ** 2).sum())
+        if norm == 0 or val.bound <= target:
+            break
+        step = theta * (val.bound - target) / norm
+        mult = Multipliers(np.maximum(0.0, mult.mu + step * g_mu), np.maximum(0.0, mult.pi + step * g_pi))
+        val = lagrangian_value(data, mult, allowed=allowed, forced=forced)
+        if val.bound < best - 1e-12 * abs(best):
+            best, best_mult, best_val, stall = val.bound, mult.copy(), val, 0
+        else:
+            stall += 1
+            if stall >= 5:
+                theta, stall = theta / 2, 0
+                if theta < 1e-4:
+                    break
+        if trace is not None:
+            trace.append((time.perf_counter() - started, best))
+    return best, best_mult, best_val
+
+
+def lp_multipliers(data: GapData, *, time_limit_s: float | None = None
+                   ) -> tuple[float | None, Multipliers | None, np.ndarray | None]:
+    """LP relaxation of Problem A (HiGHS): its value, its row duals as Lagrangian multipliers, and
+    its solution ``x`` [n, T].
+
+    The LP is written with cumulative variables ``Y[i,t] = Y[i,t-1] + x[i,t]`` so that a
+    precedence row is ``Y[u,t] - Y[lo,t-d] <= 0`` (two non-zeros) and at most once is
+    ``Y[i,T-1] <= 1``; substituting Y gives Problem A's rows, so their duals are ``pi`` and
+    ``mu``. ``L(mu, pi)`` at these duals is at most the LP value (each knapsack is solved in
+    integers) and, unlike the LP value, a bound that does not depend on the LP's tolerances.
+    Returns ``(None, None, None)`` when HiGHS gives no optimal LP.
+    """
+    import highspy
+    from scipy import sparse
+
+    n, T = data.n, data.T
+    if n == 0:
+        return data.constant, Multipliers.zeros(data), np.zeros((0, T))
+    d = 1 if data.strict else 0
+    nx = n * T
+    X = np.arange(nx).reshape(n, T)            # x[i,t]
+    Y = nx + np.arange(nx).reshape(n, T)       # Y[i,t]
+    rows_i, cols_i, vals = [], [], []
+    lo_b, up_b = [], []
+    r = 0
+    # Definitions: Y[i,t] - Y[i,t-1] - x[i,t] = 0.
+    ii, tt = np.meshgrid(np.arange(n), np.arange(T), indexing="ij")
+    defn = r + (ii * T + tt)
+    rows_i += [defn.ravel(), defn.ravel(), defn[:, 1:].ravel()]
+    cols_i += [Y.ravel(), X.ravel(), Y[:, :-1].ravel()]
+    vals += [np.ones(nx), -np.ones(nx), -np.ones(n * (T - 1))]
+    lo_b.append(np.zeros(nx))
+    up_b.append(np.zeros(nx))
+    r += nx
+    # Budgets.
+    rows_i.append(r + tt.ravel())
+    cols_i.append(X.ravel())
+    vals.append(np.repeat(data.cost.astype(np.float64), T))
+    lo_b.append(np.full(T, -np.inf))
+    up_b.append(data.budget.astype(np.float64))
+    r_budget = r
+    r += T
+    # At most once.
+    r_once = r
+    rows_i.append(r + np.arange(n))
+    cols_i.append(Y[:, -1])
+    vals.append(np.ones(n))
+    lo_b.append(np.full(n, -np.inf))
+    up_b.append(np.ones(n))
+    r += n
+    # Precedence rows (u, t).
+    uu = np.nonzero(data.lower >= 0)[0]
+    r_prec = r
+    if len(uu):
+        pu, pt = np.meshgrid(uu, np.arange(T), indexing="ij")
+        prow = r + np.arange(pu.size).reshape(pu.shape)
+        rows_i += [prow.ravel()]
+        cols_i += [Y[pu, pt].ravel()]
+        vals += [np.ones(pu.size)]
+        has_lo = pt - d >= 0
+        rows_i.append(prow[has_lo])
+        cols_i.append(Y[data.lower[pu[has_lo]], pt[has_lo] - d])
+        vals.append(-np.ones(int(has_lo.sum())))
+        lo_b.append(np.full(pu.size, -np.inf))
+        up_b.append(np.zeros(pu.size))
+        r += pu.size
+    A = sparse.csc_matrix((np.concatenate(vals), (np.concatenate(rows_i), np.concatenate(cols_i))), shape=(r, 2 * nx))
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = 2 * nx, r
+    lp.col_cost_ = np.concatenate([-data.profit.ravel(), np.zeros(nx)])
+    inf = highspy.kHighsInf
+    # Y is free: its bounds are implied by the rows, and a bound must not take over a row's dual.
+    lp.col_lower_ = np.concatenate([np.zeros(nx), np.full(nx, -inf)])
+    lp.col_upper_ = np.concatenate([np.where(data.allowed.ravel(), 1.0, 0.0), np.full(nx, inf)])
+    lower = np.concatenate(lo_b)
+    upper = np.concatenate(up_b)
+    lp.row_lower_ = np.where(np.isfinite(lower), lower, -inf)
+    lp.row_upper_ = np.where(np.isfinite(upper), upper, inf)
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = A.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = A.indices.astype(np.int32)
+    lp.a_matrix_.value_ = A.data
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    if time_limit_s is not None:
+        from l3gs_opt.models.backends.highs import _interrupt_after   # HiGHS 1.14 overruns time_limit
+
+        h.setOptionValue("time_limit", float(max(time_limit_s, 0.01)))
+        _interrupt_after(h, max(time_limit_s, 0.01))
+    h.passModel(lp)
+    h.run()
+    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        return None, None, None
+    sol = h.getSolution()
+    dual = -np.asarray(sol.row_dual)
+    mu = np.maximum(0.0, dual[r_once:r_once + n])
+    pi = np.zeros((n, T))
+    if len(uu):
+        pi[uu] = np.maximum(0.0, dual[r_prec:r]).reshape(len(uu), T)
+    x = np.asarray(sol.col_value)[:nx].reshape(n, T)
+    value = data.constant - float(h.getInfo().objective_function_value)
+    del r_budget
+    return value, Multipliers(mu, pi), x

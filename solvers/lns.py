@@ -1,0 +1,242 @@
+"""Window large-neighbourhood search for Problem A: re-optimise a few slots exactly, the rest fixed.
+
+Given a feasible assignment (slot per chunk, -1 never), a window ``W = [start, end)`` of slots is
+re-solved as a small MIP (HiGHS): chunks arriving before ``W`` stay; a chunk arriving in ``W``
+may move to any slot of ``W`` or leave the schedule; a chunk arriving after ``W`` (or never) may
+move into ``W`` or keep its slot. Budgets of the window's slots, layer order inside the window and
+against the chunks outside it are kept exactly, so the result is feasible whenever the MIP's
+is; it is re-checked in integer bytes (:func:`~.lagrange.assignment_feasible`) before use.
+Sweeping windows over the horizon is the primal workhorse of ``exact`` at the paper's scale.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from l3gs_opt.models.backends.highs import _interrupt_after  # HiGHS 1.14 overruns time_limit otherwise
+
+from .lagrange import GapData, assignment_feasible, assignment_value
+
+__all__ = ["MIP_BOUND_SLACK", "improve_window", "window_sweep", "reduced_mip"]
+
+#: Relative slack on HiGHS's MIP dual bound: its LPs are solved to 1e-7 dual feasibility, as
+#: for :data:`l3gs_opt.solvers.bounds.LP_BOUND_SLACK`.
+MIP_BOUND_SLACK = 1e-7
+
+
+def improve_window(data: GapData, assign: np.ndarray, allowed: np.ndarray, start: int, end: int, *,
+                   time_limit_s: float = 5.0) -> np.ndarray | None:
+    """Best assignment that differs from ``assign`` only as described in the module doc, or None
+    when the MIP finds nothing better (or fails)."""
+    import highspy
+
+    T, n = data.T, data.n
+    d = 1 if data.strict else 0
+    W = np.arange(start, end)
+    in_w = (assign >= start) & (assign < end)
+    later = (assign >= end) | (assign < 0)
+    out_val = np.where(later & (assign >= 0), data.profit[np.arange(n), np.maximum(assign, 0)], 0.0)
+    # Which (i, t in W) pairs get a variable.
+    ok = allowed[:, start:end].copy()
+    ok[~(in_w | later)] = False
+    for i in range(n):          # lower-layer constraints against fixed or immovable chunks
+        lo = data.lower[i]
+        if lo < 0 or not ok[i].any():
+            continue
+        if 0 <= assign[lo] < start:
+            ok[i, :max(0, assign[lo] + d - start)] = False
+        elif not ok[lo].any():
+            ok[i] = False       # its lower layer cannot be in the window: it cannot be either
+    elig = np.nonzero(ok.any(axis=1) | in_w)[0]
+    if len(elig) == 0:
+        return None
+    var: dict[tuple[int, int], int] = {}
+    costs: list[float] = []
+    for i in elig:
+        for k in np.nonzero(ok[i])[0]:
+            var[(int(i), int(k))] = len(costs)
+            costs.append(float(data.profit[i, start + k] - out_val[i]))
+    if not var:
+        return None
+    by_item: dict[int, list[tuple[int, int]]] = {}
+    for (i, k), v in var.items():
+        by_item.setdefault(i, []).append((k, v))
+    rows: list[tuple[float, float, list[int], list[float]]] = []
+    for i, lst in by_item.items():
+        rows.append((-np.inf, 1.0, [v for _, v in lst], [1.0] * len(lst)))
+    # Budgets: every chunk in a window slot is a variable, so each slot's whole budget is free.
+    for k in range(end - start):
+        items_k = [(i, v) for (i, kk), v in var.items() if kk == k]
+        if items_k:
+            rows.append((-np.inf, float(data.budget[start + k]), [v for _, v in items_k],
+                         [float(data.cost[i]) for i, _ in items_k]))
+    items_in = set(by_item)
+    for i in elig.tolist():
+        lo, up = int(data.lower[i]), int(data.upper[i])
+        # A chunk that was in the window must stay in it when its upper layer keeps a later slot
+        # outside the window (dropping it would orphan that layer).
+        if in_w[i] and up >= 0 and (up not in items_in) and assign[up] >= end:
+            lst = by_item.get(i, [])
+            rows.append((1.0, 1.0, [v for _, v in lst], [1.0] * len(lst)))
+        if i not in items_in or lo < 0 or lo not in items_in:
+            continue
+        ui, li = by_item[i], by_item[lo]
+        for k in range(end - start):
+            cu = [v for kk, v in ui if kk <= k]
+            cl = [v for kk, v in li if kk <= k - d]
+            if cu:
+                rows.append((-np.inf, 0.0, cu + cl, [1.0] * len(cu) + [-1.0] * len(cl)))
+        if in_w[lo] and assign[i] >= end:
+            # u out keeps its later slot, lo out leaves: forbid (1 - sum x_u <= sum x_lo).
+            rows.append((1.0, np.inf, [v for _, v in ui] + [v for _, v in li], [1.0] * (len(ui) + len(li))))
+    nv = len(costs)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("time_limit", float(max(time_limit_s, 0.01)))
+    _interrupt_after(h, max(time_limit_s, 0.01))
+    h.setOptionValue("mip_rel_gap", 0.0)
+    h.setOptionValue("mip_feasibility_tolerance", 1e-9)
+    inf = highspy.kHighsInf
+    h.addCols(nv, -np.asarray(costs), np.zeros(nv), np.ones(nv), 0, np.zeros(nv, np.int32),
+              np.zeros(0, np.int32), np.zeros(0))
+    h.changeColsIntegrality(nv, np.arange(nv, dtype=np.int32),
+                            np.full(nv, highspy.HighsVarType.kInteger))
+    for lo_b, up_b, cols, vals in rows:
+        h.addRow(-inf if lo_b == -np.inf else lo_b, inf if up_b == np.inf else up_b, len(cols),
+                 np.asarray(cols, np.int32), np.asarray(vals, np.float64))
+    # Start from the current assignment (feasible for the window MIP).
+    start_x = np.zeros(nv)
+    for i in elig.tolist():
+        if in_w[i] and (i, int(assign[i]) - start) in var:
+            start_x[var[(i, int(assign[i]) - start)]] = 1.0
+    h.setSolution(_solution(start_x))
+    h.run()
+    if h.getInfo().primal_solution_status != 2:   # no feasible point
+        return None
+    x = np.asarray(h.getSolution().col_value)
+    out = assign.copy()
+    for i in elig.tolist():
+        if in_w[i]:
+            out[i] = -1
+    for (i, k), v in var.items():
+        if x[v] > 0.5:
+            out[i] = start + k
+    if not assignment_feasible(data, out, allowed):
+        return None
+    return out
+
+
+def _solution(x: np.ndarray):
+    import highspy
+
+    sol = highspy.HighsSolution()
+    sol.col_value = x.tolist()
+    sol.value_valid = True
+    return sol
+
+
+def window_sweep(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, width: int, deadline: float | None,
+                 per_window_s: float = 2.0, rounds: int = 3) -> np.ndarray:
+    """Sweep windows of ``width`` slots (half-overlapping) over the horizon, keeping every
+    improvement, for up to ``rounds`` passes or until a pass improves nothing."""
+    best = assign.copy()
+    value = assignment_value(data, best)
+    T = data.T
+    step = max(1, width // 2)
+    for _ in range(rounds):
+        improved = False
+        for start in range(0, T, step):
+            left = None if deadline is None else deadline - time.perf_counter()
+            if left is not None and left <= 0:
+                return best
+            cand = improve_window(data, best, allowed, start, min(T, start + width),
+                                  time_limit_s=per_window_s if left is None else min(per_window_s, left))
+            if cand is None:
+                continue
+            v = assignment_value(data, cand)
+            if v > value * (1 + 1e-12) + 1e-300:
+                best, value, improved = cand, v, True
+        if not improved:
+            break
+    return best
+
+
+def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit_s: float | None,
+                start: np.ndarray | None = None) -> tuple[str, np.ndarray | None, float]:
+    """Problem A restricted to the pairs in ``mask`` (after reduced-cost fixing), solved by HiGHS
+    with the objective cut off at ``incumbent``: only strictly better schedules are searched.
+
+    Returns ``(outcome, assignment or None, bound)``: outcome ``"optimal"`` (the assignment is the
+    optimum of the restricted problem, or None when no schedule beats ``incumbent``: then the
+    bound is ``incumbent``), or ``"time_limit"`` with HiGHS's dual bound (held constant included;
+    ``inf`` when it has none).
+    """
+    import highspy
+
+    n, T = data.n, data.T
+    d = 1 if data.strict else 0
+    ii, tt = np.nonzero(mask)
+    nv = len(ii)
+    if nv == 0:
+        return "optimal", None, incumbent
+    var = -np.ones((n, T), dtype=np.int64)
+    var[ii, tt] = np.arange(nv)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    if time_limit_s is not None:
+        h.setOptionValue("time_limit", float(max(time_limit_s, 0.01)))
+        _interrupt_after(h, max(time_limit_s, 0.01))
+    h.setOptionValue("mip_rel_gap", 0.0)
+    h.setOptionValue("mip_abs_gap", 0.0)
+    h.setOptionValue("mip_feasibility_tolerance", 1e-9)
+    inf = highspy.kHighsInf
+    h.addCols(nv, -data.profit[ii, tt], np.zeros(nv), np.ones(nv), 0, np.zeros(nv, np.int32),
+              np.zeros(0, np.int32), np.zeros(0))
+    h.changeColsIntegrality(nv, np.arange(nv, dtype=np.int32), np.full(nv, highspy.HighsVarType.kInteger))
+    for t in range(T):
+        cols = var[:, t][var[:, t] >= 0]
+        if len(cols) and int(data.cost[ii[cols]].sum()) > int(data.budget[t]):
+            h.addRow(-inf, float(data.budget[t]), len(cols), cols.astype(np.int32), data.cost[ii[cols]].astype(float))
+    for i in range(n):
+        cols = var[i][var[i] >= 0]
+        if len(cols) > 1:
+            h.addRow(-inf, 1.0, len(cols), cols.astype(np.int32), np.ones(len(cols)))
+    for u in np.nonzero(data.lower >= 0)[0]:
+        lo = int(data.lower[u])
+        cu_all = np.nonzero(var[u] >= 0)[0]
+        for t in cu_all:
+            cu = var[u][:t + 1][var[u][:t + 1] >= 0]
+            cl_slots = var[lo][:max(t + 1 - d, 0)]
+            cl = cl_slots[cl_slots >= 0]
+            h.addRow(-inf, 0.0, len(cu) + len(cl), np.r_[cu, cl].astype(np.int32),
+                     np.r_[np.ones(len(cu)), -np.ones(len(cl))])
+    # Only schedules strictly better than the incumbent (HiGHS minimises -profit).
+    h.setOptionValue("objective_bound", float(-(incumbent - data.constant)))
+    if start is not None and (start < 0).sum() < n:
+        on = np.nonzero(start >= 0)[0]
+        if (var[on, start[on]] >= 0).all():
+            x0 = np.zeros(nv)
+            x0[var[on, start[on]]] = 1.0
+            h.setSolution(_solution(x0))
+    h.run()
+    status = h.getModelStatus()
+    info = h.getInfo()
+    ms = highspy.HighsModelStatus
+    assign = None
+    exact_ok = True
+    if info.primal_solution_status == 2:
+        x = np.asarray(h.getSolution().col_value)
+        assign = np.full(n, -1, dtype=np.int64)
+        on = x > 0.5
+        assign[ii[on]] = tt[on]
+        if not assignment_feasible(data, assign, mask):
+            assign, exact_ok = None, False   # HiGHS's tolerance let it over a budget: no proof from it
+    if exact_ok and status in (ms.kOptimal, ms.kInfeasible, ms.kObjectiveBound):
+        return "optimal", assign, (incumbent if assign is None else assignment_value(data, assign))
+    raw = float(info.mip_dual_bound)
+    dual = -raw + data.constant if math.isfinite(raw) else math.inf
+    # HiGHS's dual bound carries its LP tolerances (as lp_bound's LP value does).
+    return "time_limit", assign, dual + MIP_BOUND_SLACK * abs(dual)

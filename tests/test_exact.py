@@ -1,0 +1,250 @@
+"""``exact`` (branch-and-price on Problem A): equal to brute force and the ILP, valid bounds, feasible
+incumbents, stiff cases, time limits, and the options it rejects."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from core_helpers import random_instance
+from l3gs_opt import Instance, Options, solve
+from l3gs_opt.errors import SolveError
+from l3gs_opt.evaluate import evaluate_objective, is_feasible
+from l3gs_opt.solution import GAP_TOL, Status
+from l3gs_opt.solvers.brute_force import solve_brute_force
+from l3gs_opt.solvers.colgen import ColumnPool, column_generation
+from l3gs_opt.solvers.exact import local_search, reduced_cost_fixing, round_schedule, solve_exact
+from l3gs_opt.solvers.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
+                                       lagrangian_value, subgradient)
+from l3gs_opt.solvers.lns import improve_window, reduced_mip
+
+#: Options ``exact`` accepts: both availabilities, same-slot and strict layers (per-slot budget).
+ACCEPTED = [Options(availability=a, same_slot_layers=s) for a in ("same_slot", "next_slot") for s in (True, False)]
+
+
+def rel_close(a: float, b: float, rtol: float = 1e-9) -> bool:
+    """Objectives of the same schedule value re-summed in another order agree to 1e-9 (GAP_TOL)."""
+    return abs(a - b) <= rtol * max(abs(a), abs(b), 1.0)
+
+
+def _check(inst: Instance, sol) -> None:
+    assert is_feasible(inst, sol.arrivals)
+    assert sol.objective == evaluate_objective(inst, sol.arrivals)
+    assert sol.bound is not None and sol.bound >= sol.objective
+
+
+@pytest.mark.parametrize("opts", ACCEPTED, ids=lambda o: f"{o.availability}-{o.same_slot_layers}")
+@pytest.mark.parametrize("seed", range(6))
+def test_equals_brute_force(opts: Options, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=3, J=2, L=2, options=opts, held_p=0.4 if seed % 2 else 0.0)
+    ref = solve_brute_force(inst)
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL
+    assert rel_close(sol.objective, ref.objective)
+    assert sol.gap <= GAP_TOL
+
+
+@pytest.mark.parametrize("branching", ["hybrid", "price"])
+@pytest.mark.parametrize("seed", range(5))
+def test_equals_core_ilp(branching: str, seed: int) -> None:
+    rng = np.random.default_rng(1000 + seed)
+    inst = random_instance(rng, T=7, J=4, L=3, options=ACCEPTED[seed % 4], held_p=0.3 if seed % 3 == 0 else 0.0,
+                           tight=0.3)
+    ref = solve(inst, "ilp")
+    assert ref.status is Status.OPTIMAL
+    sol = solve(inst, "exact", options={"branching": branching})
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL
+    assert rel_close(sol.objective, ref.objective)
+
+
+def test_price_branching_alone_proves_optimality() -> None:
+    """Our own branch-and-price (no HiGHS MIP) closes the tree on a small instance where the root
+    bound is not tight."""
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        inst = random_instance(rng, T=6, J=4, L=2, tight=0.3)
+        sol = solve_exact(inst, branching="price", heuristics=())
+        ref = solve(inst, "ilp")
+        assert sol.status is Status.OPTIMAL
+        assert rel_close(sol.objective, ref.objective)
+        if sol.details["nodes"] > 1:
+            assert "tree closed" in sol.details["bound_kind"]
+            return
+    pytest.skip("no instance needed branching")
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), held=st.booleans())
+def test_bound_above_optimum_and_feasible(seed: int, opt: int, held: bool) -> None:
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=3, J=2, L=2, options=ACCEPTED[opt], held_p=0.4 if held else 0.0)
+    ref = solve_brute_force(inst).objective
+    data = gap_data(inst)
+    # Any multipliers >= 0 give a bound >= the optimum (random ones included).
+    for scale in (0.0, 0.3, 3.0):
+        mult = Multipliers(scale * rng.random(data.n), scale * rng.random((data.n, data.T)))
+        assert lagrangian_value(data, mult).bound >= ref * (1 - 1e-12)
+    bound, _, val = subgradient(data, target=0.0, iterations=30)
+    assert bound >= ref * (1 - 1e-12)
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.bound >= ref * (1 - 1e-12)
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_primal_moves_keep_schedules_feasible(seed: int, opt: int) -> None:
+    """Rounding, local search, window LNS and reduced-cost fixing never break a schedule or cut
+    off a better one."""
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=5, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
+    data = gap_data(inst)
+    score = rng.random((data.n, data.T))
+    a = round_schedule(data, score, data.allowed)
+    assert assignment_feasible(data, a)
+    b = local_search(data, a, data.allowed)
+    assert assignment_feasible(data, b)
+    assert assignment_value(data, b) >= assignment_value(data, a) - 1e-12
+    c = improve_window(data, b, data.allowed, 1, 4)
+    if c is not None:
+        assert assignment_feasible(data, c)
+    assert is_feasible(inst, data.arrivals(b))
+    assert rel_close(assignment_value(data, b), evaluate_objective(inst, data.arrivals(b)))
+    # Fixing against an incumbent keeps every better schedule: the optimum stays reachable.
+    pool = ColumnPool(data)
+    pool.add_assignment(b)
+    z = assignment_value(data, b)
+    cg = column_generation(data, pool, [], allowed=data.allowed, forced={}, incumbent=z)
+    mask = reduced_cost_fixing(data, cg.value, cg.value.bound, z, data.allowed)
+    ref = solve(inst, "ilp")
+    if ref.objective > z * (1 + 1e-9) + 1e-12:
+        opt_assign = data.assignment(inst, ref.arrivals)
+        on = opt_assign >= 0
+        assert mask[np.nonzero(on)[0], opt_assign[on]].all()
+        outcome, cand, mip_bound = reduced_mip(data, mask, z, time_limit_s=None)
+        assert outcome == "optimal" and cand is not None
+        assert rel_close(assignment_value(data, cand), ref.objective)
+
+
+def test_column_generation_bound_at_least_as_tight_as_lp() -> None:
+    from l3gs_opt.solvers.bounds import lp_bound
+
+    rng = np.random.default_rng(7)
+    inst = random_instance(rng, T=8, J=5, L=3, tight=0.3)
+    data = gap_data(inst)
+    cg = column_generation(data, ColumnPool(data), [], allowed=data.allowed, forced={}, incumbent=-math.inf)
+    lp, _ = lp_bound(inst)
+    ref = solve(inst, "ilp").objective
+    assert cg.converged
+    assert ref * (1 - 1e-12) <= cg.bound <= lp * (1 + 1e-6)
+
+
+STIFF = {
+    "utility_orders": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)),
+                                       utility=10.0 ** rng.uniform(-9, 9, (4, 3, 2)),
+                                       bandwidth=rng.integers(2, 12, 4)),
+    "ties": lambda rng: dict(cost=np.full((3, 2), 4), utility=np.ones((4, 3, 2)), bandwidth=np.full(4, 9)),
+    "zero_bandwidth": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((4, 3, 2)),
+                                       bandwidth=np.zeros(4, dtype=np.int64)),
+    "huge_bandwidth": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((4, 3, 2)),
+                                       bandwidth=np.full(4, 10**15)),
+    "huge_costs": lambda rng: dict(cost=rng.integers(10**12, 10**13, (3, 2)), utility=rng.random((4, 3, 2)),
+                                   bandwidth=rng.integers(10**12, 3 * 10**13, 4)),
+    "single_object": lambda rng: dict(cost=rng.integers(1, 9, (1, 3)), utility=rng.random((4, 1, 3)),
+                                      bandwidth=rng.integers(0, 12, 4)),
+    "empty_scene": lambda rng: dict(cost=np.zeros((0, 2), dtype=np.int64), utility=np.zeros((4, 0, 2)),
+                                    bandwidth=np.full(4, 5)),
+    "one_slot": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((1, 3, 2)),
+                                 bandwidth=[7]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(STIFF))
+def test_stiff_cases(case: str) -> None:
+    rng = np.random.default_rng(3)
+    inst = Instance("layered", **STIFF[case](rng))
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL
+    ref = solve_brute_force(inst) if inst.J * inst.L <= 6 else solve(inst, "ilp")
+    assert rel_close(sol.objective, ref.objective)
+
+
+def test_all_held() -> None:
+    rng = np.random.default_rng(4)
+    inst = Instance("layered", bandwidth=[5, 5], cost=rng.integers(1, 5, (2, 2)), utility=rng.random((2, 2, 2)),
+                    held=np.ones((2, 2), bool))
+    sol = solve(inst, "exact")
+    assert sol.status is Status.OPTIMAL and sol.arrivals == ()
+    assert rel_close(sol.objective, float(inst.utility.sum()))
+
+
+def test_time_limit_returns_valid_bound_and_feasible_schedule() -> None:
+    from l3gs_opt.synth import synth_instance
+
+    inst = synth_instance(objects=12, layers=4, slots=30, seed=1)
+    sol = solve(inst, "exact", time_limit_s=0.5)
+    _check(inst, sol)
+    assert sol.status in (Status.TIME_LIMIT, Status.OPTIMAL)
+    if sol.status is Status.TIME_LIMIT:
+        assert sol.gap > GAP_TOL
+    ilp = solve(inst, "ilp", time_limit_s=30)
+    if ilp.status is Status.OPTIMAL:
+        assert sol.bound >= ilp.objective * (1 - 1e-9)
+
+
+def test_price_branching_node_limit_is_labelled_time_limit() -> None:
+    rng = np.random.default_rng(11)
+    for seed in range(30):
+        inst = random_instance(np.random.default_rng(seed), T=6, J=4, L=2, tight=0.3)
+        sol = solve_exact(inst, branching="price", heuristics=(), max_nodes=1)
+        _check(inst, sol)
+        if sol.status is not Status.OPTIMAL:
+            assert sol.status is Status.TIME_LIMIT
+            assert sol.bound >= solve(inst, "ilp").objective * (1 - 1e-9)
+            return
+    del rng
+    pytest.skip("every instance closed at the root")
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(representation="separate"), "separate representation"),
+    (dict(options=Options(budget="cumulative")), "cumulative"),
+])
+def test_rejects_what_it_cannot_decompose(kw: dict, match: str) -> None:
+    rng = np.random.default_rng(0)
+    inst = random_instance(rng, **kw)
+    with pytest.raises(SolveError, match=match):
+        solve(inst, "exact")
+
+
+def test_rejects_slot_and_unknown_branching() -> None:
+    inst = random_instance(np.random.default_rng(0))
+    with pytest.raises(SolveError, match="slot does not apply"):
+        solve(inst, "exact", slot=0)
+    with pytest.raises(SolveError, match="branching"):
+        solve_exact(inst, branching="dfs")
+    with pytest.warns(UserWarning, match="unknown"):
+        solve(inst, "exact", options={"colour": 1})
+
+
+@pytest.mark.slow
+def test_paper_scale_short_run_is_certified() -> None:
+    """J=20, L=4, T=60 (the l3gs suite's first T=60 spec) under a 20 s limit: a feasible
+    schedule, a valid bound, and a gap far below the heuristics' (no timed assertion)."""
+    from l3gs_opt.suites import suite_specs
+
+    spec = [s for s in suite_specs("l3gs", sizes=[20], seeds=1) if not s.single_slot][0]
+    inst = spec.build()
+    sol = solve(inst, "exact", time_limit_s=20)
+    _check(inst, sol)
+    heur = solve(inst, "rolling-future:bb")
+    assert sol.objective >= heur.objective
+    assert sol.bound <= heur.bound * (1 + 1e-6)   # at least as tight as the LP bound
