@@ -18,7 +18,8 @@ import numpy as np
 
 from .errors import L3gsError
 
-__all__ = ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes"]
+__all__ = ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes",
+           "synthetic_bandwidth"]
 
 
 class TraceError(L3gsError, ValueError):
@@ -128,3 +129,66 @@ def read_bandwidth_trace(path: str | os.PathLike[str]) -> BandwidthTrace:
 def mbps_to_bytes(mbps: np.ndarray, slot_s: float = 1.0) -> np.ndarray:
     """Bytes per slot from Mbit/s (1 Mbit = 10**6 bits), rounded down: int64 [N]."""
     return np.floor(np.asarray(mbps, dtype=np.float64) * 1e6 / 8.0 * slot_s).astype(np.int64)
+
+
+def synthetic_bandwidth(seconds: int = 60, mean_mbps: float = 11.8, *, variability: float = 0.5,
+                        outage_rate: float = 0.02, outage_s: tuple[int, int] = (1, 4), correlation: float = 0.8,
+                        seed: int = 0) -> BandwidthTrace:
+    """A synthetic throughput trace (one sample per second) with fades and outages.
+
+    The log-throughput is an AR(1) process ``g[k] = correlation * g[k-1] + e[k]`` with
+    stationary standard deviation ``variability``, so throughput fades last a few seconds as in the
+    Lumos5G traces; outages (runs of zero samples, lengths uniform in ``outage_s`` seconds) start
+    in each second with probability ``outage_rate``. The trace is then scaled so that its mean,
+    outages included, is ``mean_mbps``.
+
+    Parameters
+    ----------
+    seconds : int
+        Number of samples (s), >= 1.
+    mean_mbps : float
+        Target mean throughput (Mbit/s), > 0.
+    variability : float
+        Standard deviation of the log-throughput (>= 0; 0 gives a constant trace between outages).
+    outage_rate : float
+        Probability that an outage starts in a given second, in [0, 1).
+    outage_s : (int, int)
+        Shortest and longest outage (s), 1 <= lo <= hi.
+    correlation : float
+        Lag-one correlation of the log-throughput, in [0, 1).
+    seed : int
+
+    Raises
+    ------
+    TraceError
+        An argument out of range (named), or a trace that is all outage.
+    """
+    if not (isinstance(seconds, (int, np.integer)) and seconds >= 1):
+        raise TraceError(f"seconds = {seconds!r}: must be an integer >= 1")
+    checks = [("mean_mbps", mean_mbps, mean_mbps > 0), ("variability", variability, variability >= 0),
+              ("outage_rate", outage_rate, 0 <= outage_rate < 1), ("correlation", correlation, 0 <= correlation < 1)]
+    for name, value, ok in checks:
+        if not (math.isfinite(value) and ok):
+            raise TraceError(f"{name} = {value!r}: out of range (see the docstring)")
+    lo, hi = outage_s
+    if not (1 <= lo <= hi):
+        raise TraceError(f"outage_s = {outage_s!r}: must be (lo, hi) with 1 <= lo <= hi")
+    rng = np.random.default_rng(seed)
+    innovation = variability * math.sqrt(1.0 - correlation ** 2)
+    g = np.empty(seconds)
+    g[0] = rng.normal(0.0, variability) if variability > 0 else 0.0
+    for k in range(1, seconds):
+        g[k] = correlation * g[k - 1] + rng.normal(0.0, innovation)
+    mbps = np.exp(g)
+    k = 0
+    while k < seconds:
+        if rng.random() < outage_rate:
+            length = int(rng.integers(lo, hi + 1))
+            mbps[k:k + length] = 0.0
+            k += length
+        else:
+            k += 1
+    if not mbps.any():
+        raise TraceError(f"synthetic trace (seed {seed}) is all outage: lower outage_rate")
+    trace = BandwidthTrace(f"synthetic-s{seed}", mbps)
+    return trace.scaled(mean_mbps)[0]

@@ -56,3 +56,38 @@ def test_csv_and_errors(tmp_path):
 def test_mbps_to_bytes():
     assert mbps_to_bytes(np.array([11.8, 0.0, 8.0])).tolist() == [1_475_000, 0, 1_000_000]
     assert mbps_to_bytes(np.array([8.0]), slot_s=0.5).tolist() == [500_000]
+
+
+def test_synthetic_bandwidth_mean_outages_and_determinism():
+    from l3gs_opt.traces import synthetic_bandwidth
+
+    a = synthetic_bandwidth(600, 11.8, outage_rate=0.05, seed=3)
+    b = synthetic_bandwidth(600, 11.8, outage_rate=0.05, seed=3)
+    assert np.array_equal(a.mbps, b.mbps)
+    assert a.mbps.mean() == pytest.approx(11.8, rel=1e-12)
+    assert (a.mbps >= 0).all() and np.isfinite(a.mbps).all()
+    # Outage runs: zero samples in runs of 1..4 s, starting at roughly the requested rate.
+    zero = a.mbps == 0
+    starts = np.flatnonzero(zero & ~np.concatenate([[False], zero[:-1]]))
+    ends = np.flatnonzero(zero & ~np.concatenate([zero[1:], [False]]))
+    runs = ends - starts + 1
+    assert len(runs) > 5 and runs.min() >= 1 and runs.max() <= 4 * 2  # two adjacent outages may touch
+    assert not synthetic_bandwidth(300, 5.0, outage_rate=0.0, seed=1).mbps.min() == 0
+    # No variability and no outage: a constant trace at the mean.
+    flat = synthetic_bandwidth(10, 3.0, variability=0.0, outage_rate=0.0)
+    assert np.allclose(flat.mbps, 3.0)
+    # Fades persist: neighbouring samples correlate in log space.
+    c = synthetic_bandwidth(2000, 10.0, outage_rate=0.0, correlation=0.9, seed=2)
+    g = np.log(c.mbps)
+    assert np.corrcoef(g[:-1], g[1:])[0, 1] > 0.8
+
+
+@pytest.mark.parametrize("kw, match", [({"seconds": 0}, "seconds"), ({"mean_mbps": -1.0}, "mean_mbps"),
+                                       ({"outage_rate": 1.0}, "outage_rate"), ({"correlation": 1.0}, "correlation"),
+                                       ({"variability": float("nan")}, "variability"),
+                                       ({"outage_s": (3, 2)}, "outage_s")])
+def test_synthetic_bandwidth_bad_arguments(kw, match):
+    from l3gs_opt.traces import TraceError, synthetic_bandwidth
+
+    with pytest.raises(TraceError, match=match):
+        synthetic_bandwidth(**kw)
