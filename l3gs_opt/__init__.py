@@ -21,7 +21,8 @@ __version__ = "0.1.0"
 # The rest of the public API is imported on first use (PEP 562): the renderer-backed modules pull
 # in torch, which a user who only solves instances should not wait for.
 _LAZY = {
-    "traces": ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes"],
+    "traces": ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes",
+               "synthetic_bandwidth"],
     "synth": ["synth_instance", "walking_viewer"],
     "predictors": ["PredictionError", "predict_viewport", "viewport_errors", "predict_bandwidth",
                    "bandwidth_errors"],
@@ -40,6 +41,11 @@ _LAZY = {
     "scene_build": ["BuildError", "BuildSchedule", "build_bundle"],
     "segment": ["segment_scene"],
     "scene_instance": ["instance_from_bundle"],
+    # The item form (l3gs-opt/items@1): precedence DAG and replacement groups (distill, hierarchy bundles).
+    "items": ["ITEMS_SCHEMA", "ItemInstanceError", "ItemInstance", "items_from_instance", "instance_arrivals",
+              "distill_items", "hierarchy_items"],
+    "items_io": ["items_from_dict", "load_items", "save_items"],
+    "items_eval": ["evaluate_items", "item_violations", "items_feasible"],
 }
 _LAZY_NAMES = {name: module for module, names in _LAZY.items() for name in names}
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, Callable, Mapping
 
 from .instance import Instance
+from .items import ItemInstance
 from .solution import Solution
 
 __all__ = ["METHODS", "method_names", "solve"]
@@ -33,14 +34,17 @@ def method_names() -> list[str]:
     return [*METHODS, *names()]
 
 
-def solve(instance: Instance, method: str = "ilp", *, backend: str = "highs", form: str = "standard",
+def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: str = "highs", form: str = "standard",
           slot: int | None = None, time_limit_s: float | None = None, presolve: bool = True,
           options: Mapping[str, Any] | None = None) -> Solution:
     """Solve ``instance`` with ``method``.
 
     Parameters
     ----------
-    instance : Instance
+    instance : Instance or ItemInstance
+        An item instance (``l3gs-opt/items@1``) goes to :func:`l3gs_opt.solvers.items.solve_items`,
+        which takes ``ilp``, ``lp``, ``brute``, ``bb``/``dp``/``greedy``/``fptas:EPS``,
+        ``rolling:*``, ``rolling-future:*`` and ``mpc:H``.
     method : str
         ``ilp``: exact model on ``backend``; ``lp``: its LP relaxation (a bound); any name of
         :func:`method_names`, e.g. ``brute`` (enumeration, tiny instances only).
@@ -63,6 +67,11 @@ def solve(instance: Instance, method: str = "ilp", *, backend: str = "highs", fo
     SolveError
         Unknown method, form or backend; a slot out of range; an option that does not apply.
     """
+    if isinstance(instance, ItemInstance):
+        from l3gs_opt.solvers.items import solve_items
+
+        return solve_items(instance, method, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
+                           presolve=presolve, options=options)
     if method in METHODS:
         fn = METHODS[method]
     else:

@@ -52,7 +52,7 @@ def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redun
             b.row(f"budget[{t}]", [x[k] for k in keys], costs, ub=float(bandwidth[t]))
         return
     slots = sorted(by_slot) if drop_redundant else list(range(inst.T))
-    if drop_redundant and slots and sum(float(inst.cost[j, l]) for j, l, _ in x) <= sum(bandwidth[:slots[-1] + 1]):
+    if drop_redundant and slots and _cumulative_redundant(inst, x, slots, bandwidth):
         return
     prev_r, prev_t = None, -1
     for t in slots:
@@ -64,6 +64,28 @@ def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redun
         vals = [1.0] + [float(inst.cost[j, l]) for j, l, _ in keys] + ([-1.0] if prev_r is not None else [])
         b.row(f"carry[{t}]", cols, vals, lb=extra, ub=extra)
         prev_r, prev_t = r, t
+
+
+def _cumulative_redundant(inst: Instance, x: dict[Key, int], slots: list[int], bandwidth: list[int]) -> bool:
+    """Whether no schedule can break a cumulative budget: for every slot t with arrivals, the
+    distinct chunks that can arrive by t cost at most the bytes up to t (each arrives at most
+    once). Summing x's keys against the last slot's budget, as before, missed a slot-0 overflow
+    of two chunks that fit one by one (regression test in tests/test_items.py)."""
+    first: dict[tuple[int, int], int] = {}
+    for j, l, t in x:
+        first[(j, l)] = min(first.get((j, l), t), t)
+    by_first: dict[int, int] = {}
+    for (j, l), t in first.items():
+        by_first[t] = by_first.get(t, 0) + int(inst.cost[j, l])
+    spent = budget = 0
+    prev = -1
+    for t in slots:
+        spent += by_first.get(t, 0)
+        budget += sum(bandwidth[prev + 1:t + 1])
+        prev = t
+        if spent > budget:
+            return False
+    return True
 
 
 def add_holding(b: ModelBuilder, inst: Instance, red: Reduction, x: dict[Key, int],

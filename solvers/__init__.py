@@ -6,7 +6,9 @@ rolling-horizon schedulers (``rolling:SOLVER``, ``rolling-future:SOLVER``, ``mpc
 order heuristics (``progressive``, ``slope``, ``static``), each reporting the LP relaxation as
 a certified bound. ``exact`` (Problems I/III) is branch-and-price on the GAP form: Lagrangian
 bounds with per-slot knapsacks, column generation, fixing and branching, certified gaps under a
-time limit. Brute force is the reference every one of them is tested against.
+time limit. Brute force is the reference every one of them is tested against. Item instances
+(``l3gs-opt/items@1``: precedence DAG, replacement groups) have their own per-slot MCKP over
+precedence-closed item sets, rolling schedulers and brute force (:mod:`.items`).
 """
 
 from .brute_force import MAX_SCHEDULES, solve_brute_force
@@ -15,6 +17,8 @@ from .heuristics import slope_fractional_value, solve_progressive, solve_slope, 
 from .mckp import solve_bb, solve_dp, solve_fptas, solve_greedy
 from .rolling import solve_mpc, solve_rolling
 from .exact import solve_exact
+from .items import (solve_items, solve_items_brute_force, solve_items_mpc, solve_items_rolling,
+                    solve_items_slot)
 from .lagrange import gap_data, lagrangian_value, lp_multipliers, subgradient
 
 __all__ = [
@@ -26,6 +30,11 @@ __all__ = [
     "solve_dp",
     "solve_fptas",
     "solve_greedy",
+    "solve_items",
+    "solve_items_brute_force",
+    "solve_items_mpc",
+    "solve_items_rolling",
+    "solve_items_slot",
     "solve_mpc",
     "solve_progressive",
     "solve_rolling",

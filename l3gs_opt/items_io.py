@@ -1,0 +1,173 @@
+"""Reading and writing item instances: JSON (small) and NPZ (large), schema ``l3gs-opt/items@1``.
+
+As for :mod:`l3gs_opt.instance_io`, the JSON parser walks nested lists itself so that a fault
+names its exact index (``utility[3]: expected 7 entries (items), got 6``).
+
+JSON keys: ``schema`` (``"l3gs-opt/items@1"``), ``bandwidth`` [T], ``object`` [N], ``cost`` [N],
+``utility`` [T][N], and optionally ``group`` [N], ``requires`` [[parent, child], ...], ``held``
+[N] (0/1), ``slot_s``, ``options``, ``names`` [N], ``meta``. An unknown key is an error. NPZ files
+hold the arrays under the same names and the other keys as JSON text in 0-d string arrays.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import zipfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
+
+__all__ = ["items_from_dict", "load_items", "save_items"]
+
+_KEYS = ("schema", "bandwidth", "slot_s", "object", "cost", "utility", "group", "requires", "held", "options",
+         "names", "meta")
+_REQUIRED = ("schema", "bandwidth", "object", "cost", "utility")
+_DIMS = {"bandwidth": ("slots",), "object": ("items",), "cost": ("items",), "utility": ("slots", "items"),
+         "group": ("items",), "held": ("items",), "requires": ("edges", "ends")}
+
+
+def _brief(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 24 else text[:21] + "..."
+
+
+def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
+    """Nested JSON lists -> array, checking every entry's type and every list's length."""
+    dims = _DIMS[name]
+    shape: list[int | None] = [None] * len(dims)
+    flat: list[float | int] = []
+
+    def walk(v: Any, depth: int, idx: tuple[int, ...]) -> None:
+        if depth == len(dims):
+            if type(v) is bool or not isinstance(v, (int, float)):
+                raise ItemInstanceError(name, f"= {_brief(v)}: must be a number", idx)
+            if integer and abs(v) > 2**63 - 1 and (isinstance(v, int) or math.isfinite(v)):
+                raise ItemInstanceError(name, f"= {_brief(v)}: out of range", idx)
+            if not integer and isinstance(v, int) and abs(v) > 1e308:
+                raise ItemInstanceError(name, f"= {_brief(v)}: must be finite", idx)
+            flat.append(v)
+            return
+        if not isinstance(v, list):
+            raise ItemInstanceError(name, f"must be a list over {dims[depth]}, got {type(v).__name__}", idx)
+        if name == "requires" and depth == 1 and len(v) != 2:
+            raise ItemInstanceError(name, f"must be a [parent, child] pair, got {len(v)} entries", idx)
+        if shape[depth] is None:
+            shape[depth] = len(v)
+        elif len(v) != shape[depth]:
+            raise ItemInstanceError(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)}", idx)
+        for i, item in enumerate(v):
+            walk(item, depth + 1, idx + (i,))
+
+    walk(value, 0, ())
+    full = tuple(0 if s is None else s for s in shape)
+    if integer and not any(isinstance(v, float) for v in flat):
+        arr = np.array(flat, dtype=np.int64)
+    else:
+        arr = np.array(flat, dtype=np.float64)
+    return arr.reshape(full)
+
+
+def _check_head(data: Mapping[str, Any]) -> None:
+    for key in data:
+        if key not in _KEYS:
+            raise ItemInstanceError(str(key), f"unknown key (known: {', '.join(_KEYS)})")
+    for key in _REQUIRED:
+        if key not in data:
+            raise ItemInstanceError(key, "missing")
+    if data["schema"] != ITEMS_SCHEMA:
+        raise ItemInstanceError("schema", f"{_brief(data['schema'])}: expected {ITEMS_SCHEMA!r}")
+
+
+def _build(data: Mapping[str, Any]) -> ItemInstance:
+    return ItemInstance(bandwidth=data["bandwidth"], object=data["object"], cost=data["cost"],
+                        utility=data["utility"], group=data.get("group"), requires=data.get("requires"),
+                        held=data.get("held"), slot_s=data.get("slot_s", 1.0), options=data.get("options"),
+                        names=data.get("names"), meta=data.get("meta") or {})
+
+
+def items_from_dict(data: Any) -> ItemInstance:
+    """Validate a decoded ``l3gs-opt/items@1`` JSON object and build the item instance.
+
+    Raises
+    ------
+    ItemInstanceError
+        Unknown or missing keys, a wrong schema, wrong shapes, NaN/inf, negative numbers,
+        fractional bytes, bad or cyclic edges, a held set not closed under precedence.
+    """
+    if not isinstance(data, Mapping):
+        raise ItemInstanceError("instance", "must be a JSON object")
+    _check_head(data)
+    out = dict(data)
+    for key in ("bandwidth", "object", "cost", "group", "held", "requires"):
+        if out.get(key) is not None:
+            out[key] = _nested(out[key], key, integer=True)
+    out["utility"] = _nested(out["utility"], "utility", integer=False)
+    if out.get("requires") is not None and out["requires"].size == 0:
+        out["requires"] = np.zeros((0, 2), np.int64)
+    return _build(out)
+
+
+def _npz_to_dict(npz: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in npz:
+        if key not in _KEYS:
+            raise ItemInstanceError(key, f"unknown key (known: {', '.join(_KEYS)})")
+        arr = npz[key]
+        if key in _DIMS:
+            if arr.size and arr.dtype.kind not in "biuf":
+                raise ItemInstanceError(key, f"must be numeric, got dtype {arr.dtype}")
+            out[key] = arr
+        else:
+            if arr.ndim != 0 or arr.dtype.kind != "U":
+                raise ItemInstanceError(key, "must be stored as JSON text in a 0-d string array")
+            try:
+                out[key] = json.loads(str(arr))
+            except json.JSONDecodeError as exc:
+                raise ItemInstanceError(key, f"not valid JSON: {exc}") from None
+    return out
+
+
+def load_items(path: str | os.PathLike[str]) -> ItemInstance:
+    """Load an item instance from ``.json`` or ``.npz``; every fault is an :class:`ItemInstanceError`."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".npz":
+            try:
+                with np.load(path, allow_pickle=False) as npz:
+                    data = _npz_to_dict({k: npz[k] for k in npz.files})
+            except (zipfile.BadZipFile, ValueError, EOFError, OSError) as exc:
+                if isinstance(exc, ItemInstanceError):
+                    raise
+                raise ItemInstanceError("file", f"{path}: not a readable NPZ item instance ({exc})") from None
+            _check_head(data)
+            return _build(data)
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ItemInstanceError("file", f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ItemInstanceError("file", f"{path}: cannot be read ({exc})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ItemInstanceError("file", f"{path}: not valid JSON ({exc})") from None
+    return items_from_dict(data)
+
+
+def save_items(instance: ItemInstance, path: str | os.PathLike[str]) -> Path:
+    """Write ``.json`` (small) or ``.npz`` (large), chosen by the suffix."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = instance.to_dict()
+    if path.suffix.lower() == ".npz":
+        arrays: dict[str, np.ndarray] = {}
+        for key, value in data.items():
+            arrays[key] = np.asarray(getattr(instance, key)) if key in _DIMS else np.array(json.dumps(value))
+        np.savez_compressed(path, **arrays)
+    else:
+        path.write_text(json.dumps(data, allow_nan=False) + "\n", encoding="utf-8")
+    return path
