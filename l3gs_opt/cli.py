@@ -302,6 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .cli_scene import register as register_scene_commands
 
     register_scene_commands(sub)  # render, scene make, scene info (the renderer's subcommands)
+    from .cli_simulate import register as register_simulate
+
+    register_simulate(sub)
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")

@@ -1,0 +1,119 @@
+"""The byte-level link: checked against a byte-by-byte reference and on identities (trace bytes, capacity)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from l3gs_opt.errors import L3gsError
+from l3gs_opt.link import Link, LinkError
+
+
+def _reference(bandwidth, budget, request_lists):
+    """One byte at a time: the slow, obvious model of the link (what the fast one must match)."""
+    flight: list[list] = []      # [key, size, delivered]
+    bank = 0
+    out = []
+    for t, requests in enumerate(request_lists):
+        queue = flight + [[k, s, 0] for k, s in requests]
+        cap = bandwidth[t] + bank
+        delivered: dict = {}
+        used = 0
+        for _ in range(cap):
+            head = next((q for q in queue if q[2] < q[1]), None)
+            if head is None:
+                break
+            head[2] += 1
+            used += 1
+            delivered[head[0]] = delivered.get(head[0], 0) + 1
+        flight = [q for q in queue if 0 < q[2] < q[1]]
+        idle = cap - used
+        bank = idle if budget == "cumulative" else 0
+        out.append((delivered, [(q[0], q[1] - q[2]) for q in flight], idle, bank))
+    return out
+
+
+@pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
+@pytest.mark.parametrize("seed", range(6))
+def test_matches_byte_by_byte_reference(budget, seed):
+    rng = np.random.default_rng(seed)
+    T = 6
+    bandwidth = rng.integers(0, 40, T).tolist()
+    key = 0
+    lists = []
+    fast = Link(bandwidth, budget=budget)
+    got = []
+    for t in range(T):
+        reqs = []
+        for _ in range(int(rng.integers(0, 4))):
+            reqs.append((key, int(rng.integers(1, 30))))
+            key += 1
+        lists.append(reqs)
+        d = fast.step(reqs)
+        got.append((d.delivered, list(d.in_flight), d.idle, d.banked))
+    assert got == _reference(bandwidth, budget, lists)
+
+
+@pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
+def test_delivers_exactly_the_trace_when_demand_exceeds_it(budget):
+    bandwidth = [7, 0, 13, 1, 30, 5]
+    link = Link(bandwidth, budget=budget)
+    total = 0
+    for t, b in enumerate(bandwidth):
+        d = link.step([(f"c{t}", 1000)])   # far more than a slot: always something to send
+        assert d.bytes == b and d.idle == 0 and d.capacity == b
+        total += d.bytes
+    assert total == sum(bandwidth)
+
+
+def test_capacity_identity_and_bank():
+    link = Link([10, 10, 10], budget="cumulative")
+    d0 = link.step([("a", 4)])
+    assert (d0.bytes, d0.idle, d0.banked) == (4, 6, 6)
+    d1 = link.step([("b", 25)])                  # 10 + 6 banked
+    assert (d1.capacity, d1.bytes, d1.banked) == (16, 16, 0)
+    d2 = link.step()
+    assert d2.delivered == {"b": 9} and d2.completed == ("b",) and d2.idle == 1
+    per = Link([10, 10], budget="per_slot")
+    per.step([("a", 4)])
+    assert per.bank == 0 and per.step([("b", 25)]).capacity == 10
+
+
+def test_cut_off_chunk_carries_over_and_unstarted_requests_drop():
+    link = Link([10, 10, 10])
+    d = link.step([("a", 15), ("b", 3)])
+    assert d.delivered == {"a": 10} and d.started == ("a",) and d.dropped == ("b",) and d.in_flight == (("a", 5),)
+    assert link.in_flight_bytes == 5
+    d = link.step([("c", 2)])
+    assert d.delivered == {"a": 5, "c": 2} and d.completed == ("a", "c") and d.started == ("c",)
+
+
+def test_zero_bandwidth_delivers_nothing():
+    link = Link([0, 0, 0])
+    for _ in range(3):
+        d = link.step([("a", 5), ("b", 1)])
+        assert d.bytes == 0 and d.dropped == ("a", "b") and d.in_flight == ()
+
+
+@pytest.mark.parametrize("bandwidth, match", [([3, -1], r"bandwidth\[1\] = -1"), ([1.5], r"bandwidth\[0\] = 1.5"),
+                                              ([True], r"bandwidth\[0\]")])
+def test_bad_bandwidth(bandwidth, match):
+    with pytest.raises(LinkError, match=match):
+        Link(bandwidth)
+
+
+def test_bad_requests_and_slots():
+    assert issubclass(LinkError, L3gsError)
+    with pytest.raises(LinkError, match="budget"):
+        Link([1], budget="banked")
+    link = Link([5, 5])
+    with pytest.raises(LinkError, match=r"requests\[1\]: key 'a' is requested twice"):
+        link.step([("a", 1), ("a", 2)])
+    with pytest.raises(LinkError, match=r"requests\[0\] = 0: must be > 0"):
+        link.step([("a", 0)])
+    link.step([("a", 9)])
+    with pytest.raises(LinkError, match="already in flight"):
+        link.step([("a", 9)])
+    link.step()
+    with pytest.raises(LinkError, match="slot 2: the trace has only 2 slots"):
+        link.step()
