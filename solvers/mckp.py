@@ -5,8 +5,9 @@ Each solves the single-slot MCKP of DESIGN.md (the paper's Lemma 3) at ``slot`` 
 whose objective is the utility shown at the slot, held chunks included.
 
 * ``bb`` - exact: LP bound from upper hulls, Lagrangian reduction, bounded state DP
-  (:func:`l3gs_opt.solvers._mckp.branch_and_bound`). Proves optimality, or under a time
-  limit returns its best answer with a valid bound.
+  (:func:`l3gs_opt.solvers._mckp.branch_and_bound`; integer utilities cut bounds below the
+  incumbent + 1, and large DPs run their stages compiled with numba). Proves optimality, or
+  under a time limit returns its best answer with a valid bound.
 * ``dp`` - exact: DP over bytes divided by the gcd of the option costs; a
   :class:`~l3gs_opt.errors.SolveError` when the table would exceed ``MAX_DP_CELLS``.
 * ``fptas:EPS`` - value at least ``(1 - EPS)`` times the optimum (profit scaling); its

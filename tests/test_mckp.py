@@ -6,9 +6,11 @@ solvers must agree to ``rtol=1e-9`` (``GAP_TOL``, the gap that counts as proven 
 
 from __future__ import annotations
 
+from unittest import mock
+
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import l3gs_opt
@@ -309,3 +311,260 @@ def test_fptas_guarantee_on_mid_size(seed: int, family: str, eps: float) -> None
     assert is_feasible(inst, sol.arrivals, slot=0)
     assert sol.objective - constant >= (1 - eps) * (opt - constant) - 1e-9 * max(1.0, opt)
     assert sol.bound >= opt * (1 - 1e-12)
+
+
+# -- strongly correlated classes: the integral cut and the compiled stage -----------------------
+
+#: The compiled stage kernel needs numba (a declared dependency, but optional at run time).
+needs_numba = pytest.mark.skipif(_mckp.compiled_kernels() is None, reason="numba is not installed")
+
+
+def _strong_instance(seed: int, J: int, L: int, *, R: int = 1000, fractional: bool = False) -> Instance:
+    """Pisinger's strongly correlated MCKP class as ``benchmarks/bench_solvers.py`` builds it:
+    per object sorted ``w' ~ U[1, R]``, ``p' = w' + 10``, cumulative sums; budget half of
+    ``sum_j (min_l w + max_l w)``. ``fractional`` adds ``U[0, 1)`` to the utilities (then the
+    integral cut must stay off)."""
+    rng = np.random.default_rng(seed)
+    wp = np.sort(rng.integers(1, R + 1, size=(J, L)), axis=1)
+    cost, profit = np.cumsum(wp, axis=1), np.cumsum(wp + 10, axis=1).astype(np.float64)
+    if fractional:
+        profit = profit + rng.random((J, L))
+    return Instance(representation="separate", bandwidth=[int(0.5 * (cost.min(1) + cost.max(1)).sum())],
+                    cost=cost, utility=profit[None])
+
+
+def _check_table_result(table: _mckp.OptionTable, res: _mckp.MckpResult, opt: float) -> None:
+    """Feasible in exact bytes, value recomputed from the choice, bound at least the optimum."""
+    used, value = _mckp._pick(table, res.choice)
+    assert used <= table.budget
+    assert value == res.value
+    assert res.bound >= opt * (1 - 1e-12)
+
+
+@SETTINGS
+@given(seed=st.integers(0, 10**6), J=st.integers(1, 5), L=st.integers(1, 3), R=st.sampled_from((5, 40, 1000)),
+       compiled=st.booleans(), fractional=st.booleans(), switch=st.booleans())
+def test_bb_strongly_correlated_equals_brute_force(seed: int, J: int, L: int, R: int, compiled: bool,
+                                                   fractional: bool, switch: bool) -> None:
+    inst = _strong_instance(seed, J, L, R=R, fractional=fractional)
+    table, constant = slot_table(inst, 0)
+    # switch: the one-switch completion after every stage, not only on large DPs.
+    with mock.patch.object(_mckp, "_SWITCH_MIN_STATES", 0 if switch else _mckp._SWITCH_MIN_STATES):
+        res = _mckp.branch_and_bound(table, compiled=compiled)
+    ref = solve_brute_force(inst, slot=0).objective
+    assert res.optimal
+    assert res.stats.get("integral", not fractional) is not fractional
+    _check_table_result(table, res, ref - constant)
+    assert rel_close(res.value + constant, ref)
+
+
+@pytest.mark.parametrize("fractional", [False, True])
+def test_bb_strongly_correlated_mid_size_paths_agree_with_dp(monkeypatch, fractional: bool) -> None:
+    # The integral cut, the one-switch completion and the compiled stage against the plain path
+    # (numpy stages, cut at z, completion by the LP choices only: bb as it was before them) and
+    # the DP (exact; R = 60 keeps its table small).
+    ran_compiled = 0
+    for seed in range(3):
+        inst = _strong_instance(seed, 120, 6, R=60, fractional=fractional)
+        table, constant = slot_table(inst, 0)
+        ref = _mckp.dynamic_programme(table).value
+        results = {compiled: _mckp.branch_and_bound(table, compiled=compiled) for compiled in (None, True, False)}
+        with monkeypatch.context() as mp:
+            mp.setattr(_mckp, "_integral_values", lambda *_: False)
+            mp.setattr(_mckp, "_SWITCH_MIN_STATES", 10**18)
+            results["plain"] = _mckp.branch_and_bound(table, compiled=False)
+        for name, res in results.items():
+            assert res.optimal, name
+            _check_table_result(table, res, ref)
+            if fractional:
+                assert rel_close(res.value, ref), (name, res.value, ref)
+            else:
+                assert res.value == ref, (name, res.value, ref)    # integer utilities: exact
+        assert results[True].stats["integral"] is not fractional
+        assert results[False].stats.get("compiled_stages", 0) == 0
+        ran_compiled += results[True].stats.get("compiled_stages", 0)
+    if _mckp.compiled_kernels() is not None:
+        assert ran_compiled > 0      # the DP did run, so the kernel was exercised
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), spread=st.sampled_from((0, 1, 3)))
+def test_bb_weakly_correlated_ties_equal_dp(seed: int, spread: int) -> None:
+    # p = w + U[-spread, spread]: many options of reduced profit exactly 0 at the break slope 1,
+    # an LP optimum that is often integral, and bounds that tie with the incumbent + 1.
+    rng = np.random.default_rng(seed)
+    J, L = 40, 5
+    cost = rng.integers(1, 31, size=(J, L))
+    profit = np.maximum(1, cost + rng.integers(-spread, spread + 1, size=(J, L)))
+    inst = Instance(representation="separate", bandwidth=[int(0.5 * (cost.min(1) + cost.max(1)).sum())],
+                    cost=cost, utility=profit[None].astype(np.float64))
+    table, _ = slot_table(inst, 0)
+    ref = _mckp.dynamic_programme(table).value
+    for compiled, switch_min in ((False, _mckp._SWITCH_MIN_STATES), (True, _mckp._SWITCH_MIN_STATES), (False, 0)):
+        with mock.patch.object(_mckp, "_SWITCH_MIN_STATES", switch_min):
+            res = _mckp.branch_and_bound(table, compiled=compiled)
+        assert res.optimal
+        _check_table_result(table, res, ref)
+        assert res.value == ref
+
+
+def test_integral_values_detection() -> None:
+    def table(values, budget=10):
+        values = np.asarray(values, dtype=np.float64)
+        n, K = values.shape
+        return _mckp.OptionTable(rows=np.arange(n), cost=np.tile(np.arange(1, K + 1), (n, 1)), value=values,
+                                 valid=np.ones((n, K), bool), level=np.tile(np.arange(K), (n, 1)), budget=budget)
+
+    assert _mckp._integral_values(table([[1.0, 3.0], [2.0, 5.0]]), 1e-9)
+    assert not _mckp._integral_values(table([[1.0, 3.5], [2.0, 5.0]]), 1e-9)
+    # Sums of the values must be exact in float64 ...
+    assert not _mckp._integral_values(table([[2.0 ** 51, 2.0 ** 52], [1.0, 2.0]]), 1e-9)
+    # ... and the bound's round-off well under one unit.
+    assert not _mckp._integral_values(table([[1.0, 3.0], [2.0, 5.0]]), 0.3)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_bb_state_cap_and_time_limit_keep_a_valid_bound(compiled: bool) -> None:
+    inst = _strong_instance(0, 300, 6)
+    table, _ = slot_table(inst, 0)
+    full = _mckp.branch_and_bound(table, compiled=compiled)
+    assert full.optimal
+    for kwargs in ({"max_states": 50}, {"time_limit_s": 1e-3}):
+        res = _mckp.branch_and_bound(table, compiled=compiled, **kwargs)
+        assert not res.optimal and res.stats["stopped"]
+        _check_table_result(table, res, full.value)
+        assert res.value <= full.value
+
+
+# -- the compiled stage kernel mirrors the numpy stage ----------------------------------------
+
+def _random_stage(seed: int, m: int, k: int, q: int, integral: bool) -> tuple:
+    """Inputs of one DP stage as branch_and_bound makes them: ``m`` Pareto states, ``k`` options
+    of a row (any order: "none", cost 0, comes last), the Lagrangian lines of ``q`` multipliers
+    of some rows still to add, and a cut at the 40th percentile of the candidates' bounds."""
+    rng = np.random.default_rng(seed)
+    W = np.cumsum(rng.integers(1, 20, size=m)).astype(np.int64)
+    steps = rng.integers(1, 30, size=m).astype(np.float64) if integral else rng.random(m) * 30 + 1e-3
+    P = np.cumsum(steps)
+    c = rng.integers(0, 200, size=k).astype(np.int64)
+    v = (c + rng.integers(-5, 40, size=k)).astype(np.float64) if integral else c * 1.1 + rng.random(k) * 20 - 5
+    lams = np.unique(rng.random(q) * 2)
+    rc, rv = rng.integers(1, 100, size=(25, 4)), rng.random((25, 4)) * 120
+    F = np.maximum(0.0, (rv[:, :, None] - rc[:, :, None] * lams).max(axis=1)).sum(axis=0)
+    budget = int(W[-1] if m else 0) + int(rng.integers(0, 300))
+    cap = budget - int(rng.integers(0, 100))
+    d = (budget - (W[None, :] + c[:, None])).astype(np.float64)
+    ub = (P[None, :] + v[:, None]) + (F[None, None, :] + d[:, :, None] * lams[None, None, :]).min(axis=2)
+    cut = float(np.quantile(ub, 0.4)) if ub.size else 0.0
+    opt_ids = rng.permutation(20)[:k].astype(np.uint8)       # the options' columns in the table
+    return W, P, c, v, budget, cap, F, lams, cut, opt_ids
+
+
+@needs_numba
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), m=st.integers(0, 400), k=st.integers(1, 7), q=st.integers(1, 9),
+       integral=st.booleans())
+def test_compiled_stage_equals_numpy_stage(seed: int, m: int, k: int, q: int, integral: bool) -> None:
+    args = _random_stage(seed, m, k, q, integral)
+    kern = _mckp.compiled_kernels().stage(*args)
+    # The kernel mirrors the numpy stage's envelope path (the direct path takes the minimum
+    # over the multipliers in another order, which may differ in the last ulp).
+    with mock.patch.object(_mckp, "_DIRECT_BOUND_CELLS", 0):
+        ref = _mckp._stage_numpy(*args)
+    for name, a, b in zip(("W", "P", "parent", "pick"), kern[:4], ref[:4]):
+        assert np.array_equal(a, b) and a.dtype == b.dtype, name
+    assert kern[4] == ref[4]
+
+
+@needs_numba
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), m=st.integers(1, 150), k=st.integers(1, 5), integral=st.booleans())
+def test_compiled_stage_equals_its_definition(seed: int, m: int, k: int, integral: bool) -> None:
+    # Independent of both implementations: every candidate (state + option) that fits ``cap`` and
+    # whose bound (the minimum over the multipliers' lines) exceeds the cut, then the ones no
+    # other candidate dominates (no more bytes and more value, or fewer bytes and as much).
+    W, P, c, v, budget, cap, F, lams, cut, ids = args = _random_stage(seed, m, k, 5, integral)
+    cw = (W[None, :] + c[:, None]).ravel()
+    cp = (P[None, :] + v[:, None]).ravel()
+    ub = cp + (F[None, :] + (budget - cw)[:, None].astype(np.float64) * lams[None, :]).min(axis=1)
+    fits = cw <= cap
+    # Skip examples whose bounds tie the cut to round-off (the two orders of evaluation may differ).
+    assume(not (fits & np.isclose(ub, cut, rtol=1e-12, atol=1e-9)).any())
+    live = fits & (ub > cut)
+    lw, lp = cw[live], cp[live]
+    dominated = (((lw[None, :] <= lw[:, None]) & (lp[None, :] > lp[:, None]))
+                 | ((lw[None, :] < lw[:, None]) & (lp[None, :] >= lp[:, None]))).any(axis=1)
+    expected = sorted(set(zip(lw[~dominated].tolist(), lp[~dominated].tolist())))
+    nW, nP, parent, pick, dead = _mckp.compiled_kernels().stage(*args)
+    assert list(zip(nW.tolist(), nP.tolist())) == expected
+    # Each state is its parent plus its option, exactly.
+    assert set(pick.tolist()) <= set(ids.tolist())
+    pos = np.argsort(ids)[np.searchsorted(np.sort(ids), pick)]
+    assert np.array_equal(nW, W[parent] + c[pos]) and np.array_equal(nP, P[parent] + v[pos])
+    cut_ub = ub[fits & ~live]
+    assert dead == (cut_ub.max() if cut_ub.size else -np.inf) or np.isclose(dead, cut_ub.max(), rtol=1e-12)
+
+
+@needs_numba
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), q=st.integers(1, 12), ties=st.booleans())
+def test_compiled_envelope_equals_numpy_envelope(seed: int, q: int, ties: bool) -> None:
+    rng = np.random.default_rng(seed)
+    b = np.sort(rng.integers(0, 4, size=q).astype(float) if ties else rng.random(q) * 3)
+    a = rng.random(q) * 10 if not ties else rng.integers(0, 5, size=q).astype(float)
+    ref = _mckp._envelope(a, b)
+    out = _mckp.compiled_kernels().envelope(a, b)
+    for x, y in zip(out, ref):
+        assert np.array_equal(x, y)
+    # The envelope is the minimum of the lines at every x >= 0 (checked on a grid).
+    x = np.linspace(0, 20, 101)
+    piece = np.searchsorted(ref[2], x, side="right") - 1
+    assert np.allclose(ref[0][piece] + ref[1][piece] * x, (a[None, :] + b[None, :] * x[:, None]).min(axis=1))
+
+
+@needs_numba
+def test_compiled_stage_with_every_option_cut_returns_no_state() -> None:
+    # Regression: a row whose options the incumbent had all removed reached the kernel with no
+    # option and read past its arrays (a segfault on the weakly correlated J=10,000 instances).
+    W, P = np.array([0, 5], np.int64), np.array([0.0, 2.0])
+    out = _mckp.compiled_kernels().stage(W, P, np.zeros(0, np.int64), np.zeros(0), 10, 10, np.array([1.0]),
+                                         np.array([0.5]), 0.0, np.zeros(0, np.uint8))
+    assert all(len(a) == 0 for a in out[:4]) and out[4] == -np.inf
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 10**6), m=st.integers(1, 30), n_rest=st.integers(1, 6))
+def test_switch_completion_is_the_best_single_move(seed: int, m: int, n_rest: int) -> None:
+    # Against enumeration of every (state, rest row, other allowed option) triple.
+    rng = np.random.default_rng(seed)
+    K = 3
+    n = n_rest + 2
+    costs_ext = np.concatenate([np.sort(rng.integers(1, 40, size=(n, K)), axis=1), np.zeros((n, 1), np.int64)], 1)
+    vals_ext = np.concatenate([np.sort(rng.integers(1, 60, size=(n, K)), axis=1).astype(float), np.zeros((n, 1))], 1)
+    allowed = rng.random((n, K + 1)) < 0.7
+    a_idx = rng.integers(0, K + 1, size=n)
+    allowed[np.arange(n), a_idx] = True
+    a_cost, a_val = costs_ext[np.arange(n), a_idx], vals_ext[np.arange(n), a_idx]
+    rest = np.sort(rng.choice(n, size=n_rest, replace=False))
+    W = np.cumsum(rng.integers(1, 10, size=m)).astype(np.int64)
+    P = np.cumsum(rng.integers(1, 12, size=m)).astype(float)
+    spare0, comp_v = int(rng.integers(0, 120)), 7.0
+    best = None
+    for k in range(m):
+        for i in rest:
+            for o in np.nonzero(allowed[i])[0]:
+                if o == a_idx[i] or costs_ext[i, o] - a_cost[i] > spare0 - W[k]:
+                    continue
+                value = P[k] + comp_v + vals_ext[i, o] - a_val[i]
+                if best is None or value > best:
+                    best = value
+    found = _mckp._switch_completion(W, P, rest, allowed, costs_ext, vals_ext, a_idx, a_cost, a_val, spare0, comp_v)
+    if best is None:
+        assert found is None
+        return
+    value, k, i, o = found
+    assert value == best
+    # The move it names is one of the rest, allowed, not the LP choice, fits, and is worth that.
+    assert i in rest and allowed[i, o] and o != a_idx[i]
+    assert costs_ext[i, o] - a_cost[i] <= spare0 - W[k]
+    assert P[k] + comp_v + vals_ext[i, o] - a_val[i] == value
