@@ -310,6 +310,8 @@ def main() -> int:
     ap.add_argument("--redo", default="", help="comma-separated methods whose finished runs are dropped and rerun "
                                                "(e.g. bb,greedy after a solver change)")
     ap.add_argument("--only", default="", help="comma-separated methods to run now (others are left for later)")
+    ap.add_argument("--families", default="", help="comma-separated families that --redo and this run touch "
+                                                   "(e.g. l3gs,l3gs-all to re-time bb and the MILPs side by side)")
     ap.add_argument("--out", default="benchmarks/results")
     args = ap.parse_args()
     out = Path(args.out)
@@ -321,14 +323,20 @@ def main() -> int:
         time_limit = args.time_limit or (10.0 if args.quick else 60.0)
         done = set()
         redo = {m for m in args.redo.split(",") if m}
+        families = {f for f in args.families.split(",") if f}
+
+        def touched(rec: dict) -> bool:
+            return not families or rec["family"] in families
+
         if redo and jsonl.exists():
             kept = [line for line in jsonl.read_text().splitlines()
-                    if line.strip() and json.loads(line)["method"] not in redo]
+                    if line.strip() and not (json.loads(line)["method"] in redo and touched(json.loads(line)))]
             jsonl.write_text("".join(line + "\n" for line in kept))
         if jsonl.exists():
             done = {json.loads(line)["key"] for line in jsonl.read_text().splitlines() if line.strip()}
         only = {m for m in args.only.split(",") if m}
-        todo = [r for r in plan(args.quick) if key_of(r) not in done and (not only or r["method"] in only)]
+        todo = [r for r in plan(args.quick)
+                if key_of(r) not in done and (not only or r["method"] in only) and touched(r)]
         started = time.monotonic()
         with jsonl.open("a", encoding="utf-8") as fh:
             for run in tqdm(todo, desc="solver runs", unit="run"):
