@@ -29,7 +29,7 @@ _LAZY = {
     "poses": ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
               "write_camera_path", "synthetic_poses"],
     "utility": ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
-                "build_utility_table"],
+                "build_utility_table", "grid_positions"],
     "bench": ["BenchTask", "run_bench", "read_records"],
     "report": ["write_report"],
     "suites": ["InstanceSpec", "suite_specs"],
