@@ -41,9 +41,11 @@ _LAZY = {
     "scene_build": ["BuildError", "BuildSchedule", "build_bundle"],
     "segment": ["segment_scene"],
     "scene_instance": ["instance_from_bundle"],
-    "link": ["LinkError", "Link", "SlotDelivery"],
+    "link": ["LinkError", "Link", "SlotDelivery", "max_min_shares", "split_bytes"],
     # The function ``simulate`` stays in its module: the package attribute of that name is the module.
     "simulate": ["SimulationError", "SimConfig", "Simulation", "SimulationResult", "SIM_METHODS"],
+    "sim_shared": ["run_shared", "simulate_shared"],
+    "sim_render": ["RenderCache"],
     # The item form (l3gs-opt/items@1): precedence DAG and replacement groups (distill, hierarchy bundles).
     "items": ["ITEMS_SCHEMA", "ItemInstanceError", "ItemInstance", "items_from_instance", "instance_arrivals",
               "distill_items", "hierarchy_items"],

@@ -17,13 +17,19 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .bundle import read_bundle
     from .poses import PoseMapping
     from .scene_instance import Z_UP_MAPPING
-    from .simulate import SimConfig, Simulation, trace_bytes
+    from .simulate import SimConfig, Simulation, SimulationError, trace_bytes
 
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
                        bandwidth_predictor=args.bandwidth_predictor, robust=args.robust, utility=args.utility,
                        time_limit_s=args.time_limit, horizon=args.horizon, fill=not args.no_fill,
-                       backend=args.backend)
+                       backend=args.backend, substeps=args.substeps, bandwidth_bias=args.bandwidth_bias,
+                       sh_upgrade_utility=args.sh_upgrade_utility)
+    if args.resume and not args.out:
+        raise SimulationError("resume", "needs --out (the folder of the interrupted run)")
+    cache_dir = args.cache_dir
+    if cache_dir is None and args.out and not args.no_cache:
+        cache_dir = Path(args.out) / "reference-cache"
     bundle = read_bundle(args.bundle)
     bandwidth, info = trace_bytes(args.trace, mbps=args.mbps, start=args.start, slots=args.slots,
                                   slot_s=args.slot_s)
@@ -33,8 +39,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         if recorded and Path(recorded).is_file():
             reference = recorded
     sim = Simulation(bundle, args.path, bandwidth, config=config, reference=reference,
-                     mapping=Z_UP_MAPPING if args.up == "z" else PoseMapping(), info=info)
-    result = sim.run(args.method, solver=args.solver, out_dir=args.out, progress=not args.no_progress)
+                     mapping=Z_UP_MAPPING if args.up == "z" else PoseMapping(), info=info,
+                     cache_dir=None if args.no_cache else cache_dir)
+    result = sim.run(args.method, solver=args.solver, out_dir=args.out, progress=not args.no_progress,
+                     resume=args.resume)
     s = result.summary
     if args.json:
         print(json.dumps(s, allow_nan=False))
@@ -48,9 +56,21 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
           f"idle {s['bytes_idle']} of {s['bytes_trace']} in the trace; model {s['bytes_model']}")
     print("  mean per slot (ms): " + ", ".join(f"{k} {1e3 * v:.1f}" for k, v in t.items())
           + f"; run {s['run_s']:.1f} s, load {s['loadavg_start'][0]:.2f}")
+    r = s["renders"]
+    print(f"  renders ({s['render_backend']}): view {r['view']} (+{r['view_reused']} cached), reference "
+          f"{r['reference']} (+{r['reference_reused']} cached)"
+          + (f"; resumed after {s['resumed_slots']} recorded slots" if s["resumed_slots"] else ""))
     if args.out:
         print(f"  records: {Path(args.out) / 'slots.jsonl'}, {Path(args.out) / 'summary.jsonl'}")
     return 0
+
+
+def _upgrade_utility(text: str):
+    """``--sh-upgrade-utility``: a named proxy or a fixed fraction."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def register(subparsers) -> None:
@@ -66,7 +86,9 @@ def register(subparsers) -> None:
     p.add_argument("--method", required=True,
                    help=f"{', '.join(SIM_METHODS)}, or a solver method (bb, rolling:bb, rolling-future:bb, mpc:H, "
                         "slope, progressive, static, ...)")
-    p.add_argument("--solver", default=None, help="single-slot solver of l3gs, l3gs-noseg, separate (default bb)")
+    p.add_argument("--solver", default=None,
+                   help="solver of l3gs, l3gs-noseg, separate (one slot's MCKP: bb, dp, greedy, fptas:EPS, ilp) and "
+                        "of distill, hierarchy (those, or rolling:S, rolling-future:S, mpc:H); default bb")
     p.add_argument("--mbps", type=float, default=11.8, help="scale the trace to this mean (Mbit/s; default 11.8)")
     p.add_argument("--start", type=int, default=0, help="first second of the trace window")
     p.add_argument("--slots", type=int, default=60, help="slots to simulate (default 60)")
@@ -89,7 +111,21 @@ def register(subparsers) -> None:
     p.add_argument("--horizon", type=int, default=None, help="multi-slot methods plan at most this many slots")
     p.add_argument("--no-fill", action="store_true", help="request only the slot's picks (the link may idle)")
     p.add_argument("--backend", default="highs", choices=[b.value for b in Backend], help="ILP backend")
+    p.add_argument("--substeps", type=int, default=1, metavar="S",
+                   help="re-plan S times per slot with the bytes measured so far in the slot (default 1: once)")
+    p.add_argument("--bandwidth-bias", type=float, default=1.0, metavar="X",
+                   help="multiply the predicted bytes by X (> 1: an over-optimistic predictor)")
+    p.add_argument("--sh-upgrade-utility", type=_upgrade_utility, default="residual", metavar="HOW",
+                   help="distill: the share of a splat's utility its SH upgrade brings: residual (the SH energy the "
+                        "compact fit misses; default), bands (the energy above the compact degree), or a fixed "
+                        "fraction in [0, 1]")
     p.add_argument("--out", default=None, help="folder: slots.jsonl (one line per slot, as it goes), summary.jsonl")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from the slots of this method recorded in --out")
+    p.add_argument("--cache-dir", default=None,
+                   help="keep the reference (teacher) renders there, one file per camera, for later runs "
+                        "(default: OUT/reference-cache with --out)")
+    p.add_argument("--no-cache", action="store_true", help="no reference renders on disk")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.set_defaults(func=_cmd_simulate)

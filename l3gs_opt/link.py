@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import L3gsError
 
-__all__ = ["LinkError", "Transfer", "SlotDelivery", "Link", "BUDGETS"]
+__all__ = ["LinkError", "Transfer", "SlotDelivery", "Link", "BUDGETS", "max_min_shares", "split_bytes"]
 
 BUDGETS = ("per_slot", "cumulative")
 
@@ -144,8 +144,16 @@ class Link:
         """Bytes still to come of the transfers cut off at the end of the last slot."""
         return sum(tr.remaining for tr in self.in_flight)
 
-    def step(self, requests: Sequence[tuple[Hashable, int]] = ()) -> SlotDelivery:
+    def demand(self, requests: Sequence[tuple[Hashable, int]] = ()) -> int:
+        """Bytes the link would move next slot with ``requests`` if nothing limited it, beyond
+        its bank: what it asks of a shared bottleneck."""
+        return max(0, self.in_flight_bytes + sum(int(size) for _, size in requests) - self.bank)
+
+    def step(self, requests: Sequence[tuple[Hashable, int]] = (), *, bandwidth: int | None = None) -> SlotDelivery:
         """Run the next slot with ``requests`` (``(key, size in bytes)``, in sending order).
+
+        ``bandwidth`` (bytes) replaces the slot's entry of the trace first: a link whose share
+        of a bottleneck is decided as the slot runs (see :func:`max_min_shares`).
 
         Raises
         ------
@@ -155,6 +163,8 @@ class Link:
         """
         if self.slot >= self.slots:
             raise LinkError(f"slot {self.slot}: the trace has only {self.slots} slots")
+        if bandwidth is not None:
+            self.bandwidth[self.slot] = _byte_count(bandwidth, "bandwidth", self.slot)
         busy = {tr.key for tr in self.in_flight}
         queue = list(self.in_flight)
         for i, req in enumerate(requests):
@@ -192,3 +202,61 @@ class Link:
                            in_flight=tuple((tr.key, tr.remaining) for tr in carried), idle=left, banked=self.bank)
         self.slot += 1
         return out
+
+
+def split_bytes(total: int, parts: int) -> list[int]:
+    """``total`` bytes in ``parts`` near-equal integer parts, the larger ones first (they sum to ``total``)."""
+    total = _byte_count(total, "total")
+    if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
+        raise LinkError(f"parts = {parts!r}: must be a positive integer")
+    q, r = divmod(total, int(parts))
+    return [q + (1 if i < r else 0) for i in range(int(parts))]
+
+
+def max_min_shares(total: int, demands: Sequence[int]) -> list[int]:
+    """Split ``total`` bytes of a bottleneck max-min fairly among clients with ``demands`` (bytes).
+
+    Water-filling in whole bytes: every client gets ``min(demand, level)`` for the largest
+    level the bytes allow, the bytes left below the next level go one each to the unsatisfied
+    clients in index order; when every demand is met, the bytes nobody can use are split
+    equally (lower indices first) so that the shares always sum to ``total``. The same as
+    handing out single bytes round-robin in index order, first to clients still short of
+    their demand, then to all.
+
+    Raises
+    ------
+    LinkError
+        A negative or fractional byte count, naming the index.
+
+    Example
+    -------
+    >>> max_min_shares(10, [2, 100, 100])
+    [2, 4, 4]
+    >>> max_min_shares(10, [1, 1])
+    [5, 5]
+    """
+    total = _byte_count(total, "total")
+    d = [_byte_count(v, "demands", i) for i, v in enumerate(demands)]
+    K = len(d)
+    if K == 0:
+        raise LinkError("demands: at least one client is needed")
+    if sum(d) <= total:
+        q, r = divmod(total - sum(d), K)
+        return [d[i] + q + (1 if i < r else 0) for i in range(K)]
+    # The largest level m with sum(min(d, m)) <= total (0 <= m < max(d)), by bisection.
+    lo, hi = 0, max(d)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if sum(min(v, mid) for v in d) <= total:
+            lo = mid
+        else:
+            hi = mid
+    out = [min(v, lo) for v in d]
+    left = total - sum(out)
+    for i in range(K):
+        if left == 0:
+            break
+        if d[i] > lo:
+            out[i] += 1
+            left -= 1
+    return out

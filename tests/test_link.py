@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.link import Link, LinkError
+from l3gs_opt.link import Link, LinkError, max_min_shares, split_bytes
 
 
 def _reference(bandwidth, budget, request_lists):
@@ -117,3 +117,64 @@ def test_bad_requests_and_slots():
     link.step()
     with pytest.raises(LinkError, match="slot 2: the trace has only 2 slots"):
         link.step()
+
+
+def _round_robin(total, demands):
+    """One byte at a time, in index order: first to clients short of their demand, then to all."""
+    got = [0] * len(demands)
+    left = total
+    while left and any(g < d for g, d in zip(got, demands)):
+        for i, d in enumerate(demands):
+            if left and got[i] < d:
+                got[i] += 1
+                left -= 1
+    while left:
+        for i in range(len(demands)):
+            if left:
+                got[i] += 1
+                left -= 1
+    return got
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_max_min_shares_match_byte_round_robin(seed):
+    rng = np.random.default_rng(seed)
+    K = int(rng.integers(1, 6))
+    demands = rng.integers(0, 30, K).tolist()
+    total = int(rng.integers(0, 120))
+    shares = max_min_shares(total, demands)
+    assert shares == _round_robin(total, demands)
+    assert sum(shares) == total
+    # Max-min fair: a client short of its demand gets at least as much as any other client.
+    for i, (s, d) in enumerate(zip(shares, demands)):
+        if s < d:
+            assert all(s >= other - 1 for other in shares)
+
+
+def test_max_min_shares_examples_and_errors():
+    assert max_min_shares(10, [2, 100, 100]) == [2, 4, 4]
+    assert max_min_shares(10, [0, 0]) == [5, 5]            # nobody can use them: split anyway
+    assert max_min_shares(7, [100]) == [7]                 # one client gets the whole link
+    assert max_min_shares(0, [5, 5]) == [0, 0]
+    with pytest.raises(LinkError, match=r"demands\[1\] = -1"):
+        max_min_shares(10, [1, -1])
+    with pytest.raises(LinkError, match="at least one client"):
+        max_min_shares(10, [])
+
+
+def test_split_bytes_and_per_step_bandwidth():
+    assert split_bytes(10, 4) == [3, 3, 2, 2] and split_bytes(0, 3) == [0, 0, 0]
+    with pytest.raises(LinkError, match="parts = 0"):
+        split_bytes(10, 0)
+    # A link whose capacity is set as it runs moves the same bytes as one given the trace up front.
+    bandwidth = [7, 0, 13, 1]
+    lists = [[("a", 9), ("b", 4)], [("c", 2)], [("d", 20)], []]
+    fixed = Link(bandwidth)
+    live = Link([0] * 4)
+    for reqs, b in zip(lists, bandwidth):
+        assert fixed.step(reqs) == live.step(reqs, bandwidth=b)
+    link = Link([0, 0])
+    link.step([("x", 10)], bandwidth=4)
+    assert link.demand([("y", 3)]) == 9            # 6 in flight + 3 requested
+    with pytest.raises(LinkError, match=r"bandwidth\[1\] = -2"):
+        link.step(bandwidth=-2)
