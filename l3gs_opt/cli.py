@@ -19,10 +19,10 @@ __all__ = ["main", "build_parser"]
 
 def _cmd_solve(args: argparse.Namespace) -> int:
     from .api import solve
-    from .instance_io import load_instance
+    from .items_io import load_problem
     from .report_table import comparison_table
 
-    instance = load_instance(args.instance)
+    instance = load_problem(args.instance)
     solution = solve(instance, args.method, backend=args.backend, form=args.form, slot=args.slot,
                      time_limit_s=args.time_limit, presolve=not args.no_presolve)
     if args.json:
@@ -77,10 +77,19 @@ def _cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from .instance_io import load_instance
+    from .items import ItemInstance
+    from .items_io import load_problem
+    from .items_presolve import presolve_items
     from .presolve import presolve
 
-    instance = load_instance(args.instance)
+    instance = load_problem(args.instance)
+    if isinstance(instance, ItemInstance):
+        red = presolve_items(instance)
+        print(f"{args.instance}: valid {instance!r}")
+        print(f"  total bytes {int(instance.cost.sum())}, bandwidth {int(instance.bandwidth.sum())} bytes over "
+              f"{instance.T} slots of {instance.slot_s} s; held items {int(instance.held.sum())}")
+        print(f"  presolve: {red.stats}")
+        return 0
     red = presolve(instance)
     print(f"{args.instance}: valid {instance!r}")
     print(f"  total bytes {int(instance.cost.sum())}, bandwidth {int(instance.bandwidth.sum())} bytes over "

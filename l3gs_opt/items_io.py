@@ -22,7 +22,7 @@ import numpy as np
 
 from .items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
 
-__all__ = ["items_from_dict", "load_items", "save_items"]
+__all__ = ["items_from_dict", "load_items", "load_problem", "save_items"]
 
 _KEYS = ("schema", "bandwidth", "slot_s", "object", "cost", "utility", "group", "requires", "held", "options",
          "names", "meta")
@@ -171,3 +171,25 @@ def save_items(instance: ItemInstance, path: str | os.PathLike[str]) -> Path:
     else:
         path.write_text(json.dumps(data, allow_nan=False) + "\n", encoding="utf-8")
     return path
+
+
+def _schema_of(path: Path) -> str | None:
+    """The file's ``schema`` string, or None when it cannot be read cheaply (the loader then says why)."""
+    try:
+        if path.suffix.lower() == ".npz":
+            with np.load(path, allow_pickle=False) as npz:
+                return str(npz["schema"]) if "schema" in npz.files else None
+        data = json.loads(path.read_text(encoding="utf-8"))
+        return data.get("schema") if isinstance(data, Mapping) else None
+    except Exception:  # noqa: BLE001 - any fault here is reported by the real loader
+        return None
+
+
+def load_problem(path: str | os.PathLike[str]) -> Any:
+    """Load either instance form by its ``schema``: ``l3gs-opt/items@1`` gives an
+    :class:`ItemInstance`, anything else goes to :func:`l3gs_opt.instance_io.load_instance` (which
+    names a wrong or missing schema)."""
+    from .instance_io import load_instance
+
+    path = Path(path)
+    return load_items(path) if _schema_of(path) == ITEMS_SCHEMA else load_instance(path)

@@ -114,3 +114,30 @@ def test_full_demo_with_quick_bench(tmp_path, capsys):
     report = (tmp_path / "demo" / "bench" / "report.md").read_text()
     assert "## Suite `pisinger`" in report and "error against run time" in report
     assert "3. scene -> schedule -> picture" in out and (tmp_path / "demo" / "scene" / "scene-story.png").is_file()
+
+
+def test_item_instances_go_through_solve_and_check(capsys, tmp_path):
+    """An ``l3gs-opt/items@1`` file is read by its schema: solved by the item ILP, equal to brute force."""
+    from l3gs_opt.items import distill_items
+    from l3gs_opt.items_io import save_items
+
+    rng = np.random.default_rng(3)
+    T, J, L = 3, 2, 2
+    inst = distill_items(rng.integers(1, 5, (J, L)), rng.integers(1, 4, (J, L)), rng.random((T, J, L)),
+                         rng.random((T, J, L)), [4, 3, 6])
+    path = save_items(inst, tmp_path / "items.json")
+    code, out, _ = run(capsys, "solve", str(path), "--json")
+    assert code == 0
+    ilp = json.loads(out)
+    code, out, _ = run(capsys, "solve", str(path), "--method", "brute", "--json")
+    brute = json.loads(out)
+    assert ilp["status"] == brute["status"] == "optimal"
+    assert ilp["objective"] == pytest.approx(brute["objective"], rel=1e-9)
+    code, out, _ = run(capsys, "instance", "check", str(path))
+    assert code == 0 and "valid" in out and "presolve" in out
+    # A broken item file is a one-line named error, exit 2.
+    data = json.loads(path.read_text())
+    data["requires"] = [[0, 99]]
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    code, _, err = run(capsys, "solve", str(tmp_path / "bad.json"))
+    assert code == 2 and err.startswith("error: requires[0]") and len(err.strip().splitlines()) == 1
