@@ -44,6 +44,7 @@ _LAZY = {
     "link": ["LinkError", "Link", "SlotDelivery", "max_min_shares", "split_bytes"],
     # The function ``simulate`` stays in its module: the package attribute of that name is the module.
     "simulate": ["SimulationError", "SimConfig", "Simulation", "SimulationResult", "SIM_METHODS"],
+    "experiments": ["ExperimentError", "ExperimentPlan", "make_plan", "run_experiments"],
     "sim_shared": ["run_shared", "simulate_shared"],
     "sim_render": ["RenderCache"],
     # The item form (l3gs-opt/items@1): precedence DAG and replacement groups (distill, hierarchy bundles).

@@ -314,6 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .cli_simulate import register as register_simulate
 
     register_simulate(sub)
+    from .cli_experiments import register as register_experiments
+
+    register_experiments(sub)
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")

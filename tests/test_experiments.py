@@ -1,0 +1,281 @@
+"""``l3gs-opt experiments``: the plan, resumable runs, the exact ceiling, the report, the CLI.
+
+The runs use a tiny room (1500 splats, 2 objects, 3 levels), bundles trained for 2 iterations,
+4-slot windows and 64x48 renders: seconds, not minutes. Checked against independent facts: an
+interrupted-then-resumed run gives the records of an uninterrupted one; every scheduler's summed
+true utility is a feasible schedule of the ceiling instance and never above its exact optimum;
+the report's tables against numbers computed by hand.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from l3gs_opt.cli import main
+from l3gs_opt.experiments import (PAPER_SCENE_BYTES, ExperimentError, SceneSpec, _arrivals, make_plan,
+                                  run_experiments, scaled_mbps, trace_class)
+from l3gs_opt.experiments_report import summarize, write_report
+from l3gs_opt.instance import Instance, Options
+from l3gs_opt.scene_build import BuildSchedule
+from l3gs_opt.simulate import SIM_METHODS
+
+TINY_BUILD = BuildSchedule(max_width=32, prune_ratio=0.3, recovery_iterations=2, finetune_iterations=2,
+                           layer_iterations=2)
+
+
+def _tiny_plan(**kw):
+    args = dict(scenes=[SceneSpec("tiny", 1500, objects=2, sh_degree=1, seed=0, sizes=(300, 700, 1500))],
+                traces=["lumos-throughput-low-47", "lumos-throughput-high-31"], starts=1, window_s=4,
+                paths=["orbit-log"], ablations=["true_both"], ablation_methods=["l3gs"], width=64, height=48,
+                samples_per_slot=1, schedule=TINY_BUILD, ceiling_check_s=2.0)
+    args.update(kw)
+    return make_plan(**args)
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """One uninterrupted run of the tiny plan (bundles cached for the other tests)."""
+    root = tmp_path_factory.mktemp("exp")
+    plan = _tiny_plan()
+    runs = run_experiments(plan, root / "full", cache_dir=root / "cache", progress=False, log=lambda s: None)
+    return {"root": root, "plan": plan, "records": [json.loads(line) for line in runs.read_text().splitlines()]}
+
+
+# ---------------------------------------------------------------------------------------- plan
+def test_plan_is_deterministic_and_covers_every_method():
+    a, b = make_plan(quick=True), make_plan(quick=True)
+    assert a.to_dict() == b.to_dict() and a.tasks() == b.tasks()
+    assert [t.klass for t in a.traces] == ["high", "low", "mid"]   # one trace per class
+    assert all(len(s) == 1 for s in a.starts) and [p.name for p in a.paths] == ["orbit"]
+    for tr, (start,) in zip(a.traces, a.starts):
+        from l3gs_opt.traces import read_bandwidth_trace
+
+        assert 0 <= start <= len(read_bandwidth_trace(tr.path).mbps) - a.window_s
+    ids = [t.record_id for t in a.tasks()]
+    assert len(ids) == len(set(ids))
+    planned = {m for m, _ in a.methods} | {m for m, _ in a.variant_methods}
+    assert set(SIM_METHODS) <= planned   # every simulator method runs somewhere
+    assert make_plan(quick=True, seed=5).starts != a.starts
+    full = make_plan(starts=3)
+    assert len(full.traces) == 9 and all(len(s) == 3 and len(set(s)) == 3 for s in full.starts)
+
+
+def test_scale_keeps_the_papers_ratio():
+    assert scaled_mbps(PAPER_SCENE_BYTES) == pytest.approx(11.8)
+    for scene_bytes in (736_000, 5_000_000):
+        window_bytes = scaled_mbps(scene_bytes) * 1e6 / 8 * 60
+        assert scene_bytes / window_bytes == pytest.approx(44.64e6 / (11.8e6 / 8 * 60))   # 0.504
+    assert [trace_class(n) for n in ("lumos-throughput-mid-11", "lumos-throughput-low-47", "x")] == \
+        ["mid", "low", "other"]
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(variants=["layered", "nope"]), r"variants\[1\]: 'nope' is not one of"),
+    (dict(paths=["walk"]), r"paths\[0\]: 'walk' is not one of"),
+    (dict(methods=["l3gs", "bogus"]), r"methods\[1\]: 'bogus': no bundle"),
+    (dict(methods=["sort"], variants=["layered"]), r"methods\[0\]: 'sort': no bundle among layered"),
+    (dict(ablations=["none"]), r"ablations\[0\]: 'none' is not one of"),
+    (dict(traces=["no-such-trace"]), r"traces\[0\]: 'no-such-trace': no such trace"),
+    (dict(starts=0), r"starts: 0: must be an integer >= 1"),
+    (dict(window_s=900), r"window_s: 900 s does not fit trace"),
+])
+def test_bad_arguments_are_named_errors(kw, match):
+    with pytest.raises(ExperimentError, match=match):
+        make_plan(quick=True, **kw)
+
+
+def test_cli_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["experiments", "--quick", "--paths", "walk", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: paths[0]: 'walk' is not one of")
+    assert main(["experiments", "--report-only", "--out", str(tmp_path / "none")]) == 2
+    assert "error: --out:" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------- runs
+def test_records_are_complete_and_the_log_path_is_used(tiny):
+    recs, plan = tiny["records"], tiny["plan"]
+    assert [r["record_id"] for r in recs] == [t.record_id for t in plan.tasks()]
+    assert (tiny["root"] / "cache" / "tiny" / "orbit-log.log").exists()   # written, then read back
+    sims = [r for r in recs if r["kind"] == "sim"]
+    assert all(len(r["ssim_per_s"]) == 4 and 0 <= min(r["ssim_per_s"]) <= max(r["ssim_per_s"]) <= 1 for r in sims)
+    assert {r["role"] for r in sims} == {"main", "ablation", "variant"}
+
+
+def test_every_scheduler_stays_below_the_exact_ceiling(tiny):
+    recs = tiny["records"]
+    ceilings = {(r["variant"], r["trace"], r["start_s"]): r for r in recs if r["kind"] == "ceiling"}
+    assert ceilings and all(c["status"] == "optimal" and c["method"] == "link-dp" for c in ceilings.values())
+    # The DP agrees with the ILP: its incumbent <= the DP optimum <= its bound.
+    assert all(c["check"]["consistent"] for c in ceilings.values())
+    for r in (r for r in recs if r["kind"] == "sim"):
+        c = ceilings[(r["variant"], r["trace"], r["start_s"])]
+        assert r["schedule_violations"] == [], r["record_id"]
+        if r["method"] == "preload":
+            assert r["utility_sum"] >= c["objective"] * (1 - 1e-12)
+        else:
+            assert r["utility_sum"] <= c["objective"] * (1 + 1e-9) + 1e-9, r["record_id"]
+
+
+def test_resume_after_an_interruption_loses_and_redoes_nothing(tiny, tmp_path):
+    plan = tiny["plan"]
+    out = tmp_path / "run"
+    seen: list[str] = []
+
+    def stop_after_three(rec):
+        seen.append(rec["record_id"])
+        if len(seen) == 3:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        run_experiments(plan, out, cache_dir=tiny["root"] / "cache", progress=False, on_record=stop_after_three)
+    first = (out / "runs.jsonl").read_text().splitlines()
+    assert len(first) == 3
+    with pytest.raises(ExperimentError, match="pass --resume"):
+        run_experiments(plan, out, cache_dir=tiny["root"] / "cache", progress=False)
+    with pytest.raises(ExperimentError, match=r"different plan \(.*window_s"):
+        run_experiments(_tiny_plan(window_s=3), out, resume=True, cache_dir=tiny["root"] / "cache", progress=False)
+    with open(out / "runs.jsonl", "a") as fh:
+        fh.write('{"record_id": "torn')   # a write cut off by a kill
+    again: list[str] = []
+    run_experiments(plan, out, resume=True, cache_dir=tiny["root"] / "cache", progress=False,
+                    on_record=lambda r: again.append(r["record_id"]))
+    lines = (out / "runs.jsonl").read_text().splitlines()
+    assert lines[:3] == first
+    ids = [t.record_id for t in plan.tasks()]
+    assert again == ids[3:]                                   # nothing finished was redone
+    got = [json.loads(line) for line in lines]
+    assert [r["record_id"] for r in got] == ids               # nothing lost, no torn line left
+    # The same numbers as the uninterrupted run (timings aside).
+    for a, b in zip(got, tiny["records"]):
+        for key in ("ssim_per_s", "utility_sum", "objective", "predicted_bytes", "bytes_delivered"):
+            if b.get(key) is None:
+                assert a.get(key) is None
+            else:
+                assert a[key] == pytest.approx(b[key], rel=1e-12), (a["record_id"], key)
+    sessions = (out / "sessions.jsonl").read_text().splitlines()
+    assert [json.loads(s)["records_written"] for s in sessions] == [3, len(ids) - 3]
+
+
+# ---------------------------------------------------------------------------------------- mapping
+def test_completed_units_map_to_problem_one_arrivals():
+    inst = Instance("layered", bandwidth=[100] * 4, cost=[[10, 20], [1, 30]], utility=np.ones((4, 2, 2)),
+                    options=Options(budget="cumulative"), meta={"empty_chunks": [[1, 0]]})
+    # Whole-scene layers: unit (0, l) completes every object's layer l.
+    scene = [{"slot": 0, "completed": [[0, 0]]}, {"slot": 1, "completed": []}, {"slot": 2, "completed": [[0, 1]]}]
+    got, why = _arrivals({"view": "scene", "units": [1, 2]}, scene, inst)
+    assert why is None and got == [(0, 0, 0), (0, 1, 2), (1, 0, 2), (1, 1, 2)]
+    # Distill: a layer counts once compact and upgrade are both there, and after the layers below.
+    distill = [{"slot": 0, "completed": [[0, 0, 0], [0, 1, 0]]}, {"slot": 1, "completed": [[0, 1, 1]]},
+               {"slot": 3, "completed": [[0, 0, 1], [1, 1, 0], [1, 1, 1]]}]
+    got, _ = _arrivals({"view": "distill", "units": [2, 2, 2]}, distill, inst)
+    assert got == [(0, 0, 3), (0, 1, 3), (1, 0, 3), (1, 1, 3)]
+    got, why = _arrivals({"view": "mystery", "units": [2, 2]}, scene, inst)
+    assert got is None and "mystery" in why
+
+
+# ---------------------------------------------------------------------------------------- report
+def _rec(method, variant, window, ssim, *, role="main", ablation="none", utility=None, timings=None, fresh=None):
+    trace, klass, start, pred, true, cv = window
+    return {"kind": "sim", "record_id": f"{method}/{variant}/{trace}/{ablation}", "scene": "s", "variant": variant,
+            "trace": trace, "trace_class": klass, "start_s": start, "path": "orbit", "method": method,
+            "ablation": ablation, "role": role, "ssim_per_s": ssim, "ssim_mean": float(np.mean(ssim)),
+            "psnr_mean": 20.0, "predicted_bytes": pred, "trace_bytes": true, "bandwidth_cv": cv,
+            "timings_mean_s": timings or dict(prediction=0.001, utility=0.002, scheduling=0.003, rendering=0.010,
+                                              reference=0.1, metrics=0.01),
+            "bytes_model": 1000, "bytes_wasted": 0, "utility_sum": utility, "schedule_violations": [],
+            "scene_bytes": 736_000, "mbps": 0.1946, "window_s": 2, "render_fresh_s": fresh}
+
+
+def _ceil(variant, window, objective, status="optimal", bound=None):
+    trace, _, start = window[:3]
+    return {"kind": "ceiling", "scene": "s", "variant": variant, "trace": trace, "start_s": start, "path": "orbit",
+            "method": "link-dp", "status": status, "objective": objective,
+            "bound": objective if bound is None else bound, "check": None}
+
+
+W1 = ("lumos-throughput-low-47", "low", 0, [100, 80], [100, 100], 0.5)
+W2 = ("lumos-throughput-high-31", "high", 10, [50, 60], [50, 40], 0.2)
+
+
+def _hand_records():
+    t2 = dict(prediction=0.001, utility=0.002, scheduling=0.003, rendering=0.020, reference=0.0, metrics=0.01)
+    return [
+        _ceil("layered", W1, 100.0), _ceil("layered", W2, 200.0), _ceil("sort", W1, 50.0), _ceil("sort", W2, 50.0),
+        _ceil("separate", W1, 100.0), _ceil("separate", W2, 100.0, status="time_limit", bound=120.0),
+        _ceil("distill", W1, 100.0), _ceil("distill", W2, 100.0),
+        # l3gs rendered 2 of its 4 slots, 50 ms in all (the other 2 came from the render cache).
+        _rec("l3gs", "layered", W1, [0.4, 0.8], utility=80.0, fresh=[0.05, 2]),
+        _rec("l3gs", "layered", W2, [0.6, 1.0], utility=150.0, timings=t2, fresh=[0.0, 0]),
+        _rec("sort", "sort", W1, [0.2, 0.6], utility=25.0), _rec("sort", "sort", W2, [0.4, 0.4], utility=40.0),
+        _rec("separate", "separate", W1, [0.1, 0.3], utility=90.0),
+        _rec("separate", "separate", W2, [0.4, 0.6], utility=60.0),
+        _rec("preload", "layered", W1, [1.0, 1.0], utility=300.0), _rec("preload", "layered", W2, [0.9, 0.9],
+                                                                         utility=300.0),
+        _rec("l3gs", "layered", W1, [0.6, 0.7], role="ablation", ablation="true_both", utility=70.0),
+        _rec("l3gs", "layered", W2, [0.8, 0.9], role="ablation", ablation="true_both", utility=70.0),
+        _rec("distill", "distill", W1, [0.5, 0.5], role="variant", utility=50.0),
+        _rec("distill", "distill", W2, [0.7, 0.7], role="variant", utility=100.0),
+    ]
+
+
+def test_report_tables_match_a_hand_computation(tmp_path):
+    s = summarize(_hand_records())
+    m = s["methods"]
+    assert {k: v["ssim_mean"] for k, v in m.items()} == pytest.approx(
+        {"l3gs": 0.7, "sort": 0.4, "separate": 0.35, "preload": 0.95})
+    assert m["l3gs"]["ssim_over_time"] == pytest.approx([0.5, 0.9])
+    assert m["separate"]["ssim_over_time"] == pytest.approx([0.25, 0.45])
+    assert m["l3gs"]["ssim_std"] == pytest.approx(0.1)
+    h = s["headline"]
+    assert h["baselines"] == pytest.approx({"sort": 75.0, "separate": 100.0})
+    assert h["best_baseline"] == "sort" and h["vs_best_pct"] == pytest.approx(75.0)
+    assert h["vs_mean_of_baselines_pct"] == pytest.approx(87.5) and h["preload_above_all"] is True
+    assert s["ablations"] == {"l3gs": pytest.approx({"none": 0.7, "true_both": 0.75})}
+    low, high = s["classes"]["low"], s["classes"]["high"]
+    assert low["bw_error_pct"] == pytest.approx(20.0) and high["bw_error_pct"] == pytest.approx(50.0)
+    assert low["ssim"]["sort"] == pytest.approx(0.4) and high["ssim"]["separate"] == pytest.approx(0.5)
+    assert s["latency_ms"]["l3gs"] == pytest.approx(dict(prediction=1.0, utility=2.0, scheduling=3.0, rendering=25.0,
+                                                         reference=50.0, metrics=10.0, cached_pct=50.0))
+    # Records without the fresh-render split: the mean over all slots (10 ms).
+    assert s["latency_ms"]["sort"]["rendering"] == pytest.approx(10.0) and "cached_pct" not in s["latency_ms"]["sort"]
+    assert s["variants"]["distill (distill)"]["vs_layered_pct"] == pytest.approx(100 * (0.6 / 0.7 - 1))
+    c = s["ceiling"]
+    assert c["l3gs (layered)"]["gap_pct"] == pytest.approx(22.5)          # (20% + 25%) / 2
+    assert c["sort (sort)"]["gap_pct"] == pytest.approx(35.0)             # (50% + 20%) / 2
+    # A time-limited ceiling is replaced by its bound (120): (10% + 50%) / 2, and not "proven optimal".
+    assert c["separate (separate)"]["gap_pct"] == pytest.approx(30.0)
+    assert c["separate (separate)"]["all_optimal"] is False and c["l3gs (layered)"]["all_optimal"] is True
+    assert c["distill (distill)"]["gap_pct"] == pytest.approx(25.0) and c["preload (layered)"]["preload"]
+
+    path = write_report(_hand_records(), tmp_path)
+    text = path.read_text()
+    assert "| l3gs | layered | 2 | 0.7000 | 0.1000 | 20.00 | - |" in text
+    assert "| sort | sort | 2 | 0.4000 | 0.0000 | 20.00 | +75.0% |" in text
+    assert "l3gs vs the best baseline (sort): +75.0%" in text and "+87.5%" in text
+    assert "| l3gs | 0.7000 | 0.7500 |" in text
+    assert "| low | low-47 | 1 | 0.500 | 20.0% | 0.6000 | 0.4000 | 0.2000 | 1.0000 |" in text
+    assert "| l3gs | 1.00 | 2.00 | 3.00 | 25.00 | 31.00 | 50% | 50.00 | 10.00 |" in text
+    assert "| distill (distill) | 2 | 0.6000 | -14.3% |" in text
+    assert "| l3gs (layered) | 2 | 0.7000 | 115 | 150 | 22.5% | yes | 0 |" in text
+    assert "| separate (separate) | 2 | 0.3500 | 75 | 110 | 30.0% | no | 0 |" in text
+    for name in ("ssim_over_time", "ssim_mean", "ablations", "classes", "latency", "variants", "ceiling"):
+        png = tmp_path / f"{name}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+        assert f"({name}.png)" in text
+
+
+def test_report_of_a_real_run(tiny, tmp_path):
+    path = write_report(tiny["root"] / "full" / "runs.jsonl", tmp_path)
+    text = path.read_text()
+    for section in ("## 1.", "## 2.", "## 3.", "## 4.", "## 5.", "## 6."):
+        assert section in text
+    assert "proven optimal" in text and "Scale." in text and "Run time:" in text
+    assert main(["experiments", "--report-only", "--out", str(tiny["root"] / "full")]) == 0
