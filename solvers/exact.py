@@ -3,19 +3,25 @@
 1. **Primal start**: the best of the heuristics (``rolling-future:bb``, ``slope``, ``rolling:bb``,
    and ``mpc:3`` on small scenes), then local search (move a chunk to an earlier slot, insert,
    swap two chunks between slots or out of the schedule), always feasible in integer bytes.
-2. **Bounds**: the LP relaxation of Problem A (HiGHS) gives the first multipliers; then
-   Dantzig-Wolfe column generation over per-slot fillings (:mod:`.colgen`), priced by the exact
-   single-slot knapsack solver and stabilised around the best multipliers. Every pricing round
-   is a Lagrangian bound with the linking rows (at most once, precedence) dualised
-   (:mod:`.lagrange`), valid whatever the LP did; the answer carries the best of them.
+2. **Bounds**: the LP relaxation of Problem A (HiGHS) gives the first multipliers (and the
+   Lagrangian bound at them); then, when Problem A has at most ``COLGEN_MAX_PAIRS`` (chunk, slot)
+   pairs, Dantzig-Wolfe column generation over per-slot fillings (:mod:`.colgen`), seeded with
+   the knapsack fillings at the LP duals, priced by the exact single-slot knapsack solver and
+   stabilised around the best multipliers. Every pricing round is a Lagrangian bound with the
+   linking rows (at most once, precedence) dualised (:mod:`.lagrange`), valid whatever the LP
+   did; the answer carries the best of them.
 3. **Lagrangian-guided repair**: the LP solution, the master solution and the knapsack fillings
-   are rounded into schedules, then local search and a window LNS (:mod:`.lns`: a few slots
+   are rounded into schedules; relaxation-induced neighbourhoods (chunks the LP / master holds
+   wholly in one slot stay there or leave, the rest move freely: a small MIP,
+   :func:`.lns.lp_neighbourhood`); local search and a window LNS (:mod:`.lns`: a few slots
    re-solved exactly as a small MIP, the rest fixed).
-4. **Closing the gap**: reduced-cost fixing (a chunk whose forced arrival in slot t cannot beat
-   the incumbent under the knapsack's LP bound is removed from t), then branching:
-   ``branching="hybrid"`` (default) - HiGHS branch-and-cut on Problem A reduced by that fixing,
-   cut off at the incumbent; ``branching="price"`` - our own best-first branch-and-price on
-   ``x[i,t]`` with column generation (Lagrangian bounds) and fixing at every node.
+4. **Closing the gap**: reduced-cost fixing with every Lagrangian certificate met (the LP duals'
+   and the column generation's: a chunk whose forced arrival in slot t cannot beat the incumbent
+   under the knapsack's LP bound is removed from t), then branching: ``branching="hybrid"``
+   (default) - HiGHS branch-and-cut on Problem A reduced by that fixing (layer order through
+   cumulative columns: two non-zeros a row), started from the incumbent and cut off at it;
+   ``branching="price"`` - our own best-first branch-and-price on ``x[i,t]`` with column
+   generation (Lagrangian bounds) and fixing at every node.
 
 A time limit returns the best schedule with a valid bound, status ``time_limit``; ``optimal``
 only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` says which bound
@@ -41,7 +47,7 @@ from l3gs_opt.solution import GAP_TOL, Solution, Status, finish_solution
 
 from .colgen import ColumnPool, column_generation
 from . import lagrange
-from .lns import reduced_mip, window_sweep
+from .lns import lp_neighbourhood, reduced_mip, window_sweep
 from .lagrange import GapData, LagrangeValue, assignment_feasible, assignment_value, gap_data
 
 __all__ = ["solve_exact", "local_search", "round_schedule", "reduced_cost_fixing"]
@@ -49,6 +55,16 @@ __all__ = ["solve_exact", "local_search", "round_schedule", "reduced_cost_fixing
 #: Heuristics the primal side starts from (``mpc:3`` is added when J * L <= MPC_MAX_CHUNKS).
 START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb")
 MPC_MAX_CHUNKS = 100
+#: Root column generation runs only when Problem A has at most this many (chunk, slot) pairs:
+#: above it (J=200, T=60: 48,000 pairs) one master round takes seconds and the 60 s goes to the
+#: primal side and HiGHS instead; the bound is then the Lagrangian at the LP duals.
+COLGEN_MAX_PAIRS = 20_000
+#: Shares of the time left that each root phase may use (the rest goes to the branching):
+#: column generation, window LNS, and one local-search call (its exchange step is O(n^2)).
+COLGEN_SHARE, LNS_SHARE, LOCAL_SEARCH_SHARE = 0.4, 0.2, 0.02
+#: Time share of each relaxation-induced neighbourhood MIP (chunks the LP or the master schedules
+#: wholly stay there or leave, the others move freely; :func:`.lns.lp_neighbourhood`).
+NEIGHBOURHOOD_SHARE = 0.1
 #: How the gap is closed after the root: ``hybrid`` - HiGHS branch-and-cut on the model reduced
 #: by Lagrangian fixing, cut off at the incumbent; ``price`` - our own best-first branching on
 #: x[i,t] with column generation (Lagrangian bounds) at every node.
@@ -322,7 +338,13 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                                         (np.full(0, -1, np.int64), "empty", {}))
     details["start"] = {"best": start_name, "values": start_values}
     allowed0 = data.allowed
-    assign = local_search(data, assign, allowed0, deadline=deadline)
+
+    def ls_deadline() -> float | None:
+        if deadline is None:
+            return None
+        return min(deadline, time.perf_counter() + LOCAL_SEARCH_SHARE * float(time_limit_s) + 0.05)
+
+    assign = local_search(data, assign, allowed0, deadline=ls_deadline())
     z = assignment_value(data, assign)
     details["after_local_search"] = z
     pool = ColumnPool(data)
@@ -334,13 +356,22 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
 
     def try_incumbent(cand: np.ndarray, allowed: np.ndarray, forced: Mapping[int, int]) -> None:
         nonlocal assign, z
-        cand = local_search(data, cand, allowed, forced=forced, deadline=deadline, max_swaps=50)
+        cand = local_search(data, cand, allowed, forced=forced, deadline=ls_deadline(), max_swaps=50)
         if not assignment_feasible(data, cand):
             return
         value = assignment_value(data, cand)
         if value > z:
             assign, z = cand, value
             pool.add_assignment(cand)
+
+    def neighbourhood(x: np.ndarray) -> None:
+        left = None if deadline is None else deadline - time.perf_counter()
+        if left is not None and left <= 0:
+            return
+        cand = lp_neighbourhood(data, x, allowed0, z, time_limit_s=None if left is None else NEIGHBOURHOOD_SHARE * left,
+                                start=assign)
+        if cand is not None:
+            try_incumbent(cand, allowed0, {})
 
     if n == 0:
         bound, bound_kind = z, "no chunk can arrive"
@@ -351,35 +382,49 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
         lp_value, lp_mult, lp_x = lagrange.lp_multipliers(data, time_limit_s=left)
         start_point = None
         details["lp"] = {"value": lp_value, "seconds": now()}
+        # Every Lagrangian value met is a valid fixing certificate: keep the LP duals' one too.
+        certificates: list[LagrangeValue] = []
         if lp_mult is not None:
             lv0 = lagrange.lagrangian_value(data, lp_mult)
             start_point = (lp_mult, lv0)
+            certificates.append(lv0)
             details["lp"]["lagrangian_at_lp_duals"] = lv0.bound
+            for t in range(T):   # the knapsacks at the LP duals: first columns near the optimal duals
+                pool.add(t, np.nonzero(lv0.x[:, t])[0])
             try_incumbent(round_schedule(data, lp_x, allowed0), allowed0, {})
+            neighbourhood(lp_x)
             trace.append((now(), z, max(z, lv0.bound)))
         # Root: column generation (a Lagrangian bound every round), then repair and fixing.
         left = None if deadline is None else deadline - time.perf_counter()
-        # At most half of the time left: the primal side and the branching need the rest.
+        big = n * T > COLGEN_MAX_PAIRS and start_point is not None
+        # A share of the time left: the primal side and the branching need the rest.
         root = column_generation(data, pool, rows, allowed=allowed0, forced={}, incumbent=z,
-                                 time_limit_s=None if left is None else 0.5 * left,
-                                 max_iterations=100_000, stall_iterations=100_000, start=start_point)
+                                 time_limit_s=None if left is None else (0.0 if big else COLGEN_SHARE * left),
+                                 max_iterations=1 if big else 100_000, stall_iterations=100_000, start=start_point)
+        if root.value is not (start_point[1] if start_point else None):
+            certificates.append(root.value)
         bound = max(root.bound, z) if math.isfinite(root.bound) else z
-        bound_kind = "Lagrangian (column-generation duals; per-slot knapsacks solved exactly)"
+        bound_kind = ("Lagrangian at the LP duals (per-slot knapsacks solved exactly; column generation skipped)"
+                      if big else "Lagrangian (column-generation duals; per-slot knapsacks solved exactly)")
         details["root"] = {"bound": root.bound, "master_lp": root.master, "iterations": root.iterations,
                            "converged": root.converged, "seconds": now(), "columns": len(pool),
-                           "precedence_rows": len(rows)}
-        try_incumbent(round_schedule(data, root.xbar, allowed0), allowed0, {})
+                           "precedence_rows": len(rows), "colgen_skipped": bool(big)}
+        if root.xbar.any():   # (empty when column generation was skipped)
+            try_incumbent(round_schedule(data, root.xbar, allowed0), allowed0, {})
+            neighbourhood(root.xbar)
         try_incumbent(round_schedule(data, root.value.x.astype(float) + root.xbar, allowed0), allowed0, {})
         trace.append((now(), z, bound))
-        # Window LNS from the repaired root schedule: at most a quarter of the time left.
+        # Window LNS from the repaired root schedule: a share (LNS_SHARE) of the time left.
         if not _closed(bound, z):
             left = None if deadline is None else deadline - time.perf_counter()
-            lns_deadline = None if left is None else time.perf_counter() + 0.25 * left
+            lns_deadline = None if left is None else time.perf_counter() + LNS_SHARE * left
             cand = window_sweep(data, assign, allowed0, width=lns_width, deadline=lns_deadline)
             try_incumbent(cand, allowed0, {})
             details["root"]["after_lns"] = z
             trace.append((now(), z, bound))
-        allowed_root = reduced_cost_fixing(data, root.value, root.bound, z, allowed0)
+        allowed_root = allowed0
+        for lv in certificates:
+            allowed_root = reduced_cost_fixing(data, lv, lv.bound, z, allowed_root)
         details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())
         details["root"]["incumbent"] = z
         # Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask).

@@ -20,7 +20,7 @@ from l3gs_opt.solvers.colgen import ColumnPool, column_generation
 from l3gs_opt.solvers.exact import local_search, reduced_cost_fixing, round_schedule, solve_exact
 from l3gs_opt.solvers.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
                                        lagrangian_value, subgradient)
-from l3gs_opt.solvers.lns import improve_window, reduced_mip
+from l3gs_opt.solvers.lns import improve_window, lp_neighbourhood, reduced_mip
 
 #: Options ``exact`` accepts: both availabilities, same-slot and strict layers (per-slot budget).
 ACCEPTED = [Options(availability=a, same_slot_layers=s) for a in ("same_slot", "next_slot") for s in (True, False)]
@@ -131,6 +131,57 @@ def test_primal_moves_keep_schedules_feasible(seed: int, opt: int) -> None:
         outcome, cand, mip_bound = reduced_mip(data, mask, z, time_limit_s=None)
         assert outcome == "optimal" and cand is not None
         assert rel_close(assignment_value(data, cand), ref.objective)
+
+
+@pytest.mark.parametrize("opts", ACCEPTED, ids=lambda o: f"{o.availability}-{o.same_slot_layers}")
+@pytest.mark.parametrize("seed", range(4))
+def test_reduced_mip_sparse_and_dense_rows_equal_the_ilp(opts: Options, seed: int) -> None:
+    """The cumulative-column (sparse) and the summed (dense) layer-order rows give the same optimum
+    as the core's ILP; with the cut-off at that optimum nothing better is returned, yet the run
+    closes (a point found on the way that is no better is not an answer)."""
+    rng = np.random.default_rng(2000 + seed)
+    inst = random_instance(rng, T=6, J=4, L=3, options=opts, held_p=0.3 if seed % 2 else 0.0, tight=0.3)
+    data = gap_data(inst)
+    ref = solve(inst, "ilp")
+    assert ref.status is Status.OPTIMAL
+    for sparse in (True, False):
+        outcome, cand, bound = reduced_mip(data, data.allowed, -math.inf, time_limit_s=None, sparse=sparse)
+        assert outcome == "optimal"
+        if cand is None:   # nothing can arrive: the optimum is the held constant
+            assert rel_close(ref.objective, data.constant)
+            continue
+        assert assignment_feasible(data, cand)
+        assert rel_close(assignment_value(data, cand), ref.objective)
+        assert rel_close(bound, ref.objective)
+        outcome, again, _ = reduced_mip(data, data.allowed, assignment_value(data, cand), time_limit_s=None,
+                                        sparse=sparse, start=cand)
+        assert outcome == "optimal" and again is None
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_lp_neighbourhood_is_feasible_and_contains_its_centre(seed: int, opt: int) -> None:
+    """Around the LP solution: feasible and better than the cut-off, or None. Around an optimal
+    schedule's own x (every chunk wholly in one slot): that schedule's value is found again."""
+    from l3gs_opt.solvers.lagrange import lp_multipliers
+
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=5, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
+    data = gap_data(inst)
+    _, _, x = lp_multipliers(data)
+    ref = solve(inst, "ilp")
+    if x is not None:
+        cand = lp_neighbourhood(data, x, data.allowed, -math.inf, time_limit_s=None)
+        if cand is not None:
+            assert assignment_feasible(data, cand)
+            assert assignment_value(data, cand) <= ref.objective * (1 + 1e-9) + 1e-12
+    best = data.assignment(inst, ref.arrivals)
+    centre = np.zeros((data.n, data.T))
+    on = best >= 0
+    centre[np.nonzero(on)[0], best[on]] = 1.0
+    cand = lp_neighbourhood(data, centre, data.allowed, -math.inf, time_limit_s=None)
+    value = data.constant if cand is None else assignment_value(data, cand)
+    assert rel_close(value, ref.objective)
 
 
 def test_column_generation_bound_at_least_as_tight_as_lp() -> None:
