@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+import numpy as np
 from tqdm import tqdm
 
 from .api import solve
@@ -121,12 +122,23 @@ def run_task(task: BenchTask, time_limit_s: float | None,
 
 
 def _jsonable(value: Any) -> Any:
-    try:
-        json.dumps(value, allow_nan=False)
+    """``value`` as strict JSON data: non-finite floats become None, other objects their ``str``.
+    (Text replacement of ``NaN``/``Infinity`` broke on ``-Infinity`` and on strings holding them.)"""
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if value is None or isinstance(value, str):
         return value
-    except (TypeError, ValueError):
-        return json.loads(json.dumps(value, default=str, allow_nan=True).replace("NaN", "null")
-                          .replace("Infinity", "null"))
+    return str(value)
 
 
 def _fork_worker(conn: Any, task: BenchTask, time_limit_s: float | None,

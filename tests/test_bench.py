@@ -205,3 +205,23 @@ def test_suites_are_deterministic():
         a, b = specs[0].build(), specs[0].build()
         assert a.to_dict() == b.to_dict()
         assert json.loads(json.dumps(specs[0].to_dict())) == specs[0].to_dict()
+
+
+def test_regression_jsonable_negative_infinity_in_details():
+    """A method's details with -inf, nan, numpy scalars and odd objects become strict JSON
+    (text replacement once turned ``-Infinity`` into ``-null`` and crashed the worker)."""
+    import json as _json
+
+    import numpy as np
+    import math as _math
+
+    from l3gs_opt.bench import _jsonable
+
+    details = {"bound": -_math.inf, "x": [_math.nan, _math.inf, np.float64(2.5)], "n": np.int64(3),
+               "flag": np.bool_(True), "arr": np.array([1.0, -np.inf]), "what": "NaN and -Infinity in text",
+               "obj": object, 4: (1, 2)}
+    out = _jsonable(details)
+    text = _json.dumps(out, allow_nan=False)
+    back = _json.loads(text)
+    assert back["bound"] is None and back["x"] == [None, None, 2.5] and back["n"] == 3 and back["flag"] is True
+    assert back["arr"] == [1.0, None] and back["what"] == "NaN and -Infinity in text" and back["4"] == [1, 2]
