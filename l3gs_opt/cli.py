@@ -83,17 +83,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from .presolve import presolve
 
     instance = load_problem(args.instance)
-    if isinstance(instance, ItemInstance):
-        red = presolve_items(instance)
-        print(f"{args.instance}: valid {instance!r}")
-        print(f"  total bytes {int(instance.cost.sum())}, bandwidth {int(instance.bandwidth.sum())} bytes over "
-              f"{instance.T} slots of {instance.slot_s} s; held items {int(instance.held.sum())}")
-        print(f"  presolve: {red.stats}")
-        return 0
-    red = presolve(instance)
+    items = isinstance(instance, ItemInstance)
+    red = presolve_items(instance) if items else presolve(instance)
     print(f"{args.instance}: valid {instance!r}")
     print(f"  total bytes {int(instance.cost.sum())}, bandwidth {int(instance.bandwidth.sum())} bytes over "
-          f"{instance.T} slots of {instance.slot_s} s; held chunks {int(instance.held.sum())}")
+          f"{instance.T} slots of {instance.slot_s} s; held {'items' if items else 'chunks'} "
+          f"{int(instance.held.sum())}")
     print(f"  presolve: {red.stats}")
     return 0
 

@@ -32,40 +32,49 @@ def _brief(value: object) -> str:
     return text if len(text) <= 24 else text[:21] + "..."
 
 
-def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
-    """Nested JSON lists -> array, checking every entry's type and every list's length."""
-    dims = _DIMS[name]
+def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
+                 error: type[InstanceError] = InstanceError, pairs: bool = False) -> np.ndarray:
+    """Nested JSON lists -> array, checking every entry's type and every list's length.
+
+    ``dims`` names the axes (for messages); ``pairs``: the second axis holds exactly two entries
+    (edge lists). Integers stay int64 unless a float appears (the caller then names a fractional
+    value). Errors are ``error(name, message, index)``, so both instance forms share one parser.
+    """
     shape: list[int | None] = [None] * len(dims)
     flat: list[float | int] = []
 
     def walk(v: Any, depth: int, idx: tuple[int, ...]) -> None:
         if depth == len(dims):
             if type(v) is bool or not isinstance(v, (int, float)):
-                raise InstanceError(name, f"= {v!r}: must be a number", idx)
+                raise error(name, f"= {_brief(v)}: must be a number", idx)
             if integer and abs(v) > 2**63 - 1 and (isinstance(v, int) or math.isfinite(v)):
-                raise InstanceError(name, f"= {_brief(v)}: out of range", idx)
+                raise error(name, f"= {_brief(v)}: out of range", idx)
             if not integer and isinstance(v, int) and abs(v) > 1e308:
-                raise InstanceError(name, f"= {_brief(v)}: must be finite", idx)
+                raise error(name, f"= {_brief(v)}: must be finite", idx)
             flat.append(v)
             return
         if not isinstance(v, list):
-            raise InstanceError(name, f"must be a list over {dims[depth]}, got {type(v).__name__}", idx)
+            raise error(name, f"must be a list over {dims[depth]}, got {type(v).__name__}", idx)
+        if pairs and depth == 1 and len(v) != 2:
+            raise error(name, f"must be a [parent, child] pair, got {len(v)} entries", idx)
         if shape[depth] is None:
             shape[depth] = len(v)
         elif len(v) != shape[depth]:
-            raise InstanceError(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)}", idx)
+            raise error(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)}", idx)
         for i, item in enumerate(v):
             walk(item, depth + 1, idx + (i,))
 
     walk(value, 0, ())
     full = tuple(0 if s is None else s for s in shape)
-    if integer and any(isinstance(v, float) for v in flat):
-        arr = np.array(flat, dtype=np.float64)
-    elif integer:
+    if integer and not any(isinstance(v, float) for v in flat):
         arr = np.array(flat, dtype=np.int64)
     else:
         arr = np.array(flat, dtype=np.float64)
     return arr.reshape(full)
+
+
+def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
+    return nested_array(value, name, _DIMS[name], integer=integer)
 
 
 def instance_from_dict(data: Any) -> Instance:

@@ -12,7 +12,6 @@ hold the arrays under the same names and the other keys as JSON text in 0-d stri
 from __future__ import annotations
 
 import json
-import math
 import os
 import zipfile
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .instance_io import nested_array
 from .items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
 
 __all__ = ["items_from_dict", "load_items", "load_problem", "save_items"]
@@ -37,39 +37,8 @@ def _brief(value: object) -> str:
 
 
 def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
-    """Nested JSON lists -> array, checking every entry's type and every list's length."""
-    dims = _DIMS[name]
-    shape: list[int | None] = [None] * len(dims)
-    flat: list[float | int] = []
-
-    def walk(v: Any, depth: int, idx: tuple[int, ...]) -> None:
-        if depth == len(dims):
-            if type(v) is bool or not isinstance(v, (int, float)):
-                raise ItemInstanceError(name, f"= {_brief(v)}: must be a number", idx)
-            if integer and abs(v) > 2**63 - 1 and (isinstance(v, int) or math.isfinite(v)):
-                raise ItemInstanceError(name, f"= {_brief(v)}: out of range", idx)
-            if not integer and isinstance(v, int) and abs(v) > 1e308:
-                raise ItemInstanceError(name, f"= {_brief(v)}: must be finite", idx)
-            flat.append(v)
-            return
-        if not isinstance(v, list):
-            raise ItemInstanceError(name, f"must be a list over {dims[depth]}, got {type(v).__name__}", idx)
-        if name == "requires" and depth == 1 and len(v) != 2:
-            raise ItemInstanceError(name, f"must be a [parent, child] pair, got {len(v)} entries", idx)
-        if shape[depth] is None:
-            shape[depth] = len(v)
-        elif len(v) != shape[depth]:
-            raise ItemInstanceError(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)}", idx)
-        for i, item in enumerate(v):
-            walk(item, depth + 1, idx + (i,))
-
-    walk(value, 0, ())
-    full = tuple(0 if s is None else s for s in shape)
-    if integer and not any(isinstance(v, float) for v in flat):
-        arr = np.array(flat, dtype=np.int64)
-    else:
-        arr = np.array(flat, dtype=np.float64)
-    return arr.reshape(full)
+    return nested_array(value, name, _DIMS[name], integer=integer, error=ItemInstanceError,
+                        pairs=name == "requires")
 
 
 def _check_head(data: Mapping[str, Any]) -> None:
