@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
 from .items import ItemInstance
-from .solution import GAP_TOL, ModelSize, Solution, Status, relative_gap
+from .solution import Solution, finish_solution
 
 __all__ = ["ItemArrival", "normalize_item_arrivals", "evaluate_items", "item_violations", "items_feasible",
            "repair_items", "finish_items_solution"]
@@ -179,32 +179,8 @@ def repair_items(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *,
         drop(min(pool, key=lambda i: (value[i] / inst.cost[i], -i)))
 
 
-def finish_items_solution(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *, problem: str, method: str,
-                          status: Status, bound: float | None, runtime_s: float, slot: int | None = None,
-                          backend: str | None = None, backend_version: str | None = None,
-                          size_before: ModelSize | None = None, size_after: ModelSize | None = None,
-                          message: str = "", details: Mapping[str, Any] | None = None) -> Solution:
-    """Check, repair if needed, re-evaluate and package an item schedule (as
-    :func:`l3gs_opt.solution.finish_solution` does for instances): a repaired schedule or a claimed
-    optimum further than ``GAP_TOL`` from the bound is downgraded to ``FEASIBLE``; a bound below
-    the re-evaluated objective is raised to it."""
-    notes = [message] if message else []
-    schedule = normalize_item_arrivals(arrivals)
-    violations = item_violations(instance, schedule, slot=slot)
-    if violations:
-        schedule, dropped = repair_items(instance, schedule, slot=slot)
-        notes.append(f"repaired: the schedule broke {len(violations)} rule(s) ({violations[0]}); "
-                     f"dropped {dropped} item(s)")
-        if status is Status.OPTIMAL:
-            status = Status.FEASIBLE
-    objective = evaluate_items(instance, schedule, slot=slot)
-    if bound is not None and math.isfinite(bound) and bound < objective:
-        bound = objective
-    gap = relative_gap(objective, bound)
-    if status is Status.OPTIMAL and (gap is None or gap > GAP_TOL):
-        notes.append(f"claimed optimal but gap to bound is {gap}; reported as feasible")
-        status = Status.FEASIBLE
-    return Solution(problem=problem, method=method, status=status, arrivals=schedule, objective=objective,
-                    bound=bound, gap=gap, runtime_s=float(runtime_s), backend=backend,
-                    backend_version=backend_version, size_before=size_before, size_after=size_after,
-                    slot=slot, message="; ".join(notes), details=dict(details or {}))
+def finish_items_solution(instance: ItemInstance, arrivals: Iterable[Sequence[int]], **fields: Any) -> Solution:
+    """:func:`l3gs_opt.solution.finish_solution` for an item schedule (one mechanism for both forms):
+    a repaired schedule or a claimed optimum further than ``GAP_TOL`` from the bound is downgraded
+    to ``FEASIBLE``; a bound below the re-evaluated objective is raised to it."""
+    return finish_solution(instance, arrivals, **fields)

@@ -137,6 +137,18 @@ class Solution:
         }
 
 
+def _schedule_rules(instance: Any) -> tuple:
+    """(normalise, violations, repair, evaluate, unit) of the instance's form: ``Instance`` chunks
+    or ``ItemInstance`` items (imported here: the item form builds on this module)."""
+    from .items import ItemInstance
+
+    if isinstance(instance, ItemInstance):
+        from .items_eval import evaluate_items, item_violations, normalize_item_arrivals, repair_items
+
+        return normalize_item_arrivals, item_violations, repair_items, evaluate_items, "item"
+    return normalize_arrivals, feasibility_violations, repair_schedule, evaluate_objective, "chunk"
+
+
 def finish_solution(
     instance: Instance,
     arrivals: Iterable[Arrival],
@@ -154,23 +166,25 @@ def finish_solution(
     message: str = "",
     details: Mapping[str, Any] | None = None,
 ) -> Solution:
-    """Check, repair if needed, re-evaluate and package a schedule.
+    """Check, repair if needed, re-evaluate and package a schedule (of an ``Instance`` or an
+    ``ItemInstance``).
 
     ``status`` is the method's own claim. It is downgraded when the schedule had to be
     repaired (to ``FEASIBLE``) or when a claimed optimum is further than ``GAP_TOL`` from the
     bound (to ``FEASIBLE``). A bound below the re-evaluated objective (backend round-off) is
     raised to it.
     """
+    normalize, violations_of, repair, evaluate, unit = _schedule_rules(instance)
     notes = [message] if message else []
-    schedule = normalize_arrivals(arrivals)
-    violations = feasibility_violations(instance, schedule, slot=slot)
+    schedule = normalize(arrivals)
+    violations = violations_of(instance, schedule, slot=slot)
     if violations:
-        schedule, dropped = repair_schedule(instance, schedule, slot=slot)
+        schedule, dropped = repair(instance, schedule, slot=slot)
         notes.append(f"repaired: the schedule broke {len(violations)} rule(s) ({violations[0]}); "
-                     f"dropped {dropped} chunk(s)")
+                     f"dropped {dropped} {unit}(s)")
         if status is Status.OPTIMAL:
             status = Status.FEASIBLE
-    objective = evaluate_objective(instance, schedule, slot=slot)
+    objective = evaluate(instance, schedule, slot=slot)
     if bound is not None and math.isfinite(bound) and bound < objective:
         bound = objective
     gap = relative_gap(objective, bound)
