@@ -115,7 +115,16 @@ def _mpc(horizon: int) -> SolverFn:
     return run
 
 
-_FIXED: dict[str, SolverFn] = {"brute": _brute, "exact": _exact}
+def _link_dp(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
+             **_model_options: Any) -> Solution:
+    from .link_dp import solve_link_dp
+
+    if slot is not None:
+        raise SolveError("method 'link-dp' schedules every slot; it takes no slot")
+    return solve_link_dp(instance, time_limit_s=time_limit_s)
+
+
+_FIXED: dict[str, SolverFn] = {"brute": _brute, "exact": _exact, "link-dp": _link_dp}
 _SINGLE = ("bb", "dp", "greedy")
 _MULTI = ("progressive", "slope", "static")
 _PARAMETRISED = ("fptas:EPS", "mpc:H", "rolling:SOLVER", "rolling-future:SOLVER")

@@ -71,3 +71,15 @@ def test_link_dp_refuses_what_it_cannot_solve():
                    options=Options(budget="cumulative"))
     with pytest.raises(SolveError, match="4096 states exceed max_states = 100"):
         solve_link_dp(big, max_states=100)
+
+
+def test_link_dp_is_a_method_of_solve():
+    """Registered as ``link-dp``: through :func:`l3gs_opt.solve` it equals the ILP; it refuses a slot."""
+    rng = np.random.default_rng(7)
+    inst = _random_instance(rng, "layered")
+    via_api = solve(inst, "link-dp")
+    ilp = solve(inst, "ilp")
+    assert via_api.status is Status.OPTIMAL and ilp.status is Status.OPTIMAL
+    assert via_api.objective == pytest.approx(ilp.objective, rel=1e-9)
+    with pytest.raises(SolveError, match="link-dp"):
+        solve(inst, "link-dp", slot=0)
