@@ -98,6 +98,40 @@ def _show(value: np.generic) -> str:
     return repr(value.item())
 
 
+def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count: int,
+                     axis: str) -> tuple[float, "Options", tuple[str, ...] | None, types.MappingProxyType]:
+    """Check the fields both instance forms share: ``slot_s`` (seconds, > 0), ``options``,
+    ``names`` (``count`` strings, one per ``axis`` entry) and ``meta`` (a JSON object, copied by a
+    JSON round trip and frozen). Raises :class:`InstanceError` naming the field and index."""
+    if isinstance(slot_s, bool) or not isinstance(slot_s, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(slot_s) or slot_s <= 0:
+        raise InstanceError("slot_s", f"{slot_s!r}: must be a positive number of seconds")
+    options = options if options is not None else Options()
+    if not isinstance(options, Options):
+        options = Options.from_dict(options)
+    if names is not None:
+        if isinstance(names, str) or not isinstance(names, Sequence):
+            raise InstanceError("names", f"must be a list of {axis} strings")
+        if len(names) != count:
+            raise InstanceError("names", f"has {len(names)} entries, expected {axis} = {count}")
+        for k, name in enumerate(names):
+            if not isinstance(name, str):
+                text = repr(name)
+                raise InstanceError("names", f"{text if len(text) <= 24 else text[:21] + '...'}: must be a string",
+                                    (k,))
+        names = tuple(names)
+    meta = meta if meta is not None else {}
+    if not isinstance(meta, Mapping):
+        raise InstanceError("meta", "must be a JSON object")
+    try:
+        # A JSON round trip both checks and copies; read-only mappings (an instance's own meta,
+        # passed back through ``replace``) are written as the objects they stand for.
+        meta = json.loads(json.dumps(meta, allow_nan=False, default=_mapping_as_dict))
+    except (TypeError, ValueError) as exc:
+        raise InstanceError("meta", f"must be JSON-serialisable: {exc}") from None
+    return float(slot_s), options, names, types.MappingProxyType(meta)
+
+
 def _first_index(mask: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(mask)[0])
 
@@ -206,35 +240,10 @@ class Instance:
             raise InstanceError("utility", f"has shape {utility.shape}, expected (T, J, L) = {(T, J, L)} "
                                            "from bandwidth and cost")
         held = self._validated_held(self.held, J, L)
-        slot_s = self.slot_s
-        if isinstance(slot_s, bool) or not isinstance(slot_s, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(slot_s) or slot_s <= 0:
-            raise InstanceError("slot_s", f"{slot_s!r}: must be a positive number of seconds")
-        options = self.options if self.options is not None else Options()
-        if not isinstance(options, Options):
-            options = Options.from_dict(options)
-        names = self.names
-        if names is not None:
-            if isinstance(names, str) or not isinstance(names, Sequence):
-                raise InstanceError("names", "must be a list of J strings")
-            if len(names) != J:
-                raise InstanceError("names", f"has {len(names)} entries, expected J = {J}")
-            for j, name in enumerate(names):
-                if not isinstance(name, str):
-                    raise InstanceError("names", f"{name!r}: must be a string", (j,))
-            names = tuple(names)
-        meta = self.meta if self.meta is not None else {}
-        if not isinstance(meta, Mapping):
-            raise InstanceError("meta", "must be a JSON object")
-        try:
-            # A JSON round trip both checks and copies; read-only mappings (this class's own meta,
-            # passed back through ``replace``) are written as the objects they stand for.
-            meta = json.loads(json.dumps(meta, allow_nan=False, default=_mapping_as_dict))
-        except (TypeError, ValueError) as exc:
-            raise InstanceError("meta", f"must be JSON-serialisable: {exc}") from None
+        slot_s, options, names, meta = validated_common(self.slot_s, self.options, self.names, self.meta,
+                                                        count=J, axis="J")
         for name, value in [("bandwidth", bandwidth), ("cost", cost), ("utility", utility), ("held", held),
-                            ("slot_s", float(slot_s)), ("options", options), ("names", names),
-                            ("meta", types.MappingProxyType(meta))]:
+                            ("slot_s", slot_s), ("options", options), ("names", names), ("meta", meta)]:
             object.__setattr__(self, name, value)
 
     def _validated_held(self, held: Any, J: int, L: int) -> np.ndarray:

@@ -30,9 +30,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
-import math
-import types
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -40,7 +37,7 @@ import numpy as np
 
 from .errors import InstanceError
 from .instance import SCHEMA as INSTANCE_SCHEMA
-from .instance import Instance, Options, _byte_array, _first_index, _mapping_as_dict, _show
+from .instance import Instance, Options, _byte_array, _first_index, _show, validated_common
 
 __all__ = [
     "ITEMS_SCHEMA",
@@ -269,33 +266,11 @@ class ItemInstance:
         children_t = tuple(tuple(c) for c in children)
         order = _topological(N, parents_t, children_t)
         held = self._validated_held(self.held, N, edges)
-        slot_s = self.slot_s
-        if isinstance(slot_s, bool) or not isinstance(slot_s, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(slot_s) or slot_s <= 0:
-            raise ItemInstanceError("slot_s", f"{slot_s!r}: must be a positive number of seconds")
-        options = self.options if self.options is not None else Options()
-        if not isinstance(options, Options):
-            options = _ours(Options.from_dict, options)
-        names = self.names
-        if names is not None:
-            if isinstance(names, str) or not isinstance(names, Sequence):
-                raise ItemInstanceError("names", "must be a list of N strings")
-            if len(names) != N:
-                raise ItemInstanceError("names", f"has {len(names)} entries, expected N = {N}")
-            for i, name in enumerate(names):
-                if not isinstance(name, str):
-                    raise ItemInstanceError("names", f"{_brief(name)}: must be a string", (i,))
-            names = tuple(names)
-        meta = self.meta if self.meta is not None else {}
-        if not isinstance(meta, Mapping):
-            raise ItemInstanceError("meta", "must be a JSON object")
-        try:
-            meta = json.loads(json.dumps(meta, allow_nan=False, default=_mapping_as_dict))
-        except (TypeError, ValueError) as exc:
-            raise ItemInstanceError("meta", f"must be JSON-serialisable: {exc}") from None
+        slot_s, options, names, meta = _ours(validated_common, self.slot_s, self.options, self.names, self.meta,
+                                             count=N, axis="N")
         for name, value in [("bandwidth", bandwidth), ("object", objects), ("cost", cost), ("utility", utility),
-                            ("group", groups), ("requires", edges), ("held", held), ("slot_s", float(slot_s)),
-                            ("options", options), ("names", names), ("meta", types.MappingProxyType(meta))]:
+                            ("group", groups), ("requires", edges), ("held", held), ("slot_s", slot_s),
+                            ("options", options), ("names", names), ("meta", meta)]:
             object.__setattr__(self, name, value)
         # Derived structure (not fields): adjacency, a topological order, dense group indices.
         labels, gindex = np.unique(groups, return_inverse=True)
