@@ -18,7 +18,8 @@ import numpy as np
 from .errors import InstanceError
 from .instance import SCHEMA, Instance, Options
 
-__all__ = ["instance_from_dict", "load_instance", "save_instance"]
+__all__ = ["instance_from_dict", "load_instance", "save_instance", "nested_array", "npz_fields",
+           "read_problem_file"]
 
 _KEYS = ("schema", "representation", "bandwidth", "slot_s", "cost", "utility", "held", "options", "names",
          "meta")
@@ -115,59 +116,69 @@ def instance_from_dict(data: Any) -> Instance:
     )
 
 
-def _npz_to_dict(npz: Mapping[str, np.ndarray]) -> dict[str, Any]:
-    """NPZ entries carry the JSON names; scalars and objects are stored as JSON text."""
+def npz_fields(npz: Mapping[str, np.ndarray], keys: tuple[str, ...], dims: Mapping[str, Any], *,
+               error: type[InstanceError] = InstanceError) -> dict[str, Any]:
+    """NPZ entries carry the JSON names: arrays for the keys in ``dims`` (numeric), the rest as
+    JSON text in 0-d string arrays. Unknown keys are an error."""
     out: dict[str, Any] = {}
     for key in npz:
-        if key not in _KEYS:
-            raise InstanceError(key, f"unknown key (known: {', '.join(_KEYS)})")
+        if key not in keys:
+            raise error(key, f"unknown key (known: {', '.join(keys)})")
         arr = npz[key]
-        if key in _DIMS:
+        if key in dims:
+            if arr.size and arr.dtype.kind not in "biuf":
+                raise error(key, f"must be numeric, got dtype {arr.dtype}")
             out[key] = arr
         else:
             if arr.ndim != 0 or arr.dtype.kind != "U":
-                raise InstanceError(key, "must be stored as JSON text in a 0-d string array")
+                raise error(key, "must be stored as JSON text in a 0-d string array")
             try:
                 out[key] = json.loads(str(arr))
             except json.JSONDecodeError as exc:
-                raise InstanceError(key, f"not valid JSON: {exc}") from None
+                raise error(key, f"not valid JSON: {exc}") from None
     return out
 
 
-def load_instance(path: str | os.PathLike[str]) -> Instance:
-    """Load an instance from ``.json`` or ``.npz``; every fault is an :class:`InstanceError`."""
+def read_problem_file(path: str | os.PathLike[str], keys: tuple[str, ...], dims: Mapping[str, Any], *,
+                      error: type[InstanceError] = InstanceError,
+                      what: str = "instance") -> tuple[bool, Any]:
+    """Read a ``.json`` or ``.npz`` problem file: ``(True, fields)`` for NPZ, ``(False, decoded
+    JSON)`` otherwise. A missing, unreadable or malformed file is ``error("file", ...)``."""
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":
             try:
                 with np.load(path, allow_pickle=False) as npz:
-                    data = _npz_to_dict({k: npz[k] for k in npz.files})
+                    return True, npz_fields({k: npz[k] for k in npz.files}, keys, dims, error=error)
             except (zipfile.BadZipFile, ValueError, EOFError, OSError) as exc:
                 if isinstance(exc, InstanceError):
                     raise
-                raise InstanceError("file", f"{path}: not a readable NPZ instance ({exc})") from None
-            for key in ("bandwidth", "cost", "utility", "held"):
-                if key in data and data[key].dtype.kind not in "biuf":
-                    raise InstanceError(key, f"must be numeric, got dtype {data[key].dtype}")
-            for key in _REQUIRED:
-                if key not in data:
-                    raise InstanceError(key, "missing")
-            if data["schema"] != SCHEMA:
-                raise InstanceError("schema", f"{data['schema']!r}: expected {SCHEMA!r}")
-            return Instance(representation=data["representation"], bandwidth=data["bandwidth"],
-                            cost=data["cost"], utility=data["utility"], held=data.get("held"),
-                            slot_s=data.get("slot_s", 1.0), options=Options.from_dict(data.get("options")),
-                            names=data.get("names"), meta=data.get("meta") or {})
+                raise error("file", f"{path}: not a readable NPZ {what} ({exc})") from None
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise InstanceError("file", f"{path}: no such file") from None
+        raise error("file", f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise InstanceError("file", f"{path}: cannot be read ({exc})") from None
+        raise error("file", f"{path}: cannot be read ({exc})") from None
     try:
-        data = json.loads(text)
+        return False, json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InstanceError("file", f"{path}: not valid JSON ({exc})") from None
-    return instance_from_dict(data)
+        raise error("file", f"{path}: not valid JSON ({exc})") from None
+
+
+def load_instance(path: str | os.PathLike[str]) -> Instance:
+    """Load an instance from ``.json`` or ``.npz``; every fault is an :class:`InstanceError`."""
+    is_npz, data = read_problem_file(path, _KEYS, _DIMS)
+    if not is_npz:
+        return instance_from_dict(data)
+    for key in _REQUIRED:
+        if key not in data:
+            raise InstanceError(key, "missing")
+    if data["schema"] != SCHEMA:
+        raise InstanceError("schema", f"{data['schema']!r}: expected {SCHEMA!r}")
+    return Instance(representation=data["representation"], bandwidth=data["bandwidth"],
+                    cost=data["cost"], utility=data["utility"], held=data.get("held"),
+                    slot_s=data.get("slot_s", 1.0), options=Options.from_dict(data.get("options")),
+                    names=data.get("names"), meta=data.get("meta") or {})
 
 
 def save_instance(instance: Instance, path: str | os.PathLike[str]) -> Path:

@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from .instance_io import nested_array
+from .instance_io import nested_array, read_problem_file
 from .items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
 
 __all__ = ["items_from_dict", "load_items", "load_problem", "save_items"]
@@ -81,50 +80,13 @@ def items_from_dict(data: Any) -> ItemInstance:
     return _build(out)
 
 
-def _npz_to_dict(npz: Mapping[str, np.ndarray]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key in npz:
-        if key not in _KEYS:
-            raise ItemInstanceError(key, f"unknown key (known: {', '.join(_KEYS)})")
-        arr = npz[key]
-        if key in _DIMS:
-            if arr.size and arr.dtype.kind not in "biuf":
-                raise ItemInstanceError(key, f"must be numeric, got dtype {arr.dtype}")
-            out[key] = arr
-        else:
-            if arr.ndim != 0 or arr.dtype.kind != "U":
-                raise ItemInstanceError(key, "must be stored as JSON text in a 0-d string array")
-            try:
-                out[key] = json.loads(str(arr))
-            except json.JSONDecodeError as exc:
-                raise ItemInstanceError(key, f"not valid JSON: {exc}") from None
-    return out
-
-
 def load_items(path: str | os.PathLike[str]) -> ItemInstance:
     """Load an item instance from ``.json`` or ``.npz``; every fault is an :class:`ItemInstanceError`."""
-    path = Path(path)
-    try:
-        if path.suffix.lower() == ".npz":
-            try:
-                with np.load(path, allow_pickle=False) as npz:
-                    data = _npz_to_dict({k: npz[k] for k in npz.files})
-            except (zipfile.BadZipFile, ValueError, EOFError, OSError) as exc:
-                if isinstance(exc, ItemInstanceError):
-                    raise
-                raise ItemInstanceError("file", f"{path}: not a readable NPZ item instance ({exc})") from None
-            _check_head(data)
-            return _build(data)
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ItemInstanceError("file", f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ItemInstanceError("file", f"{path}: cannot be read ({exc})") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ItemInstanceError("file", f"{path}: not valid JSON ({exc})") from None
-    return items_from_dict(data)
+    is_npz, data = read_problem_file(path, _KEYS, _DIMS, error=ItemInstanceError, what="item instance")
+    if not is_npz:
+        return items_from_dict(data)
+    _check_head(data)
+    return _build(data)
 
 
 def save_items(instance: ItemInstance, path: str | os.PathLike[str]) -> Path:
