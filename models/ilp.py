@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import time
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from l3gs_opt.instance import Instance
 from l3gs_opt.solution import Solution, Status, finish_solution
 
 from .backends import Backend, solve_model
 from .build import build_model
+from .linear import LinearModel
 
-__all__ = ["solve_ilp"]
+__all__ = ["solve_ilp", "solve_built"]
 
 
 def solve_ilp(instance: Instance, *, backend: "str | Backend" = Backend.HIGHS, form: str = "standard",
@@ -28,10 +29,21 @@ def solve_ilp(instance: Instance, *, backend: "str | Backend" = Backend.HIGHS, f
     Solution
         ``status`` comes from the backend's own termination, downgraded by the exact checks.
     """
+    return solve_built(instance, lambda enabled: build_model(instance, form=form, slot=slot, presolve_enabled=enabled),
+                       backend=backend, slot=slot, time_limit_s=time_limit_s, presolve=presolve, relax=relax,
+                       options=options)
+
+
+def solve_built(instance: Any, build: Callable[[bool], LinearModel], *, backend: "str | Backend",
+                slot: int | None, time_limit_s: float | None, presolve: bool, relax: bool,
+                options: Mapping[str, Any] | None) -> Solution:
+    """Build with ``build(presolve_enabled)``, solve on ``backend`` and check the answer: the one
+    path every exact model takes (either instance form). The naive model's size (no presolve) is
+    reported next to the one solved; ``relax`` gives a bound with the empty schedule."""
     backend = Backend.parse(backend)
     started = time.perf_counter()
-    model = build_model(instance, form=form, slot=slot, presolve_enabled=presolve)
-    naive = build_model(instance, form=form, slot=slot, presolve_enabled=False).size if presolve else model.size
+    model = build(presolve)
+    naive = build(False).size if presolve else model.size
     result = solve_model(model, backend, time_limit_s=time_limit_s, relax=relax, options=options)
     runtime = time.perf_counter() - started
     bound = None if result.bound is None else result.bound + model.constant

@@ -22,7 +22,6 @@ are those of :mod:`._common`, applied to the items as the "layers" of one object
 from __future__ import annotations
 
 import dataclasses
-import time
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -31,12 +30,12 @@ import numpy as np
 from l3gs_opt.errors import SolveError
 from l3gs_opt.instance import Options
 from l3gs_opt.items import ItemInstance
-from l3gs_opt.items_eval import finish_items_solution
 from l3gs_opt.items_presolve import ItemReduction, presolve_items
-from l3gs_opt.solution import Solution, Status
+from l3gs_opt.solution import Solution
 
 from ._common import add_arrivals, add_budget, add_holding
-from .backends import Backend, solve_model
+from .backends import Backend
+from .ilp import solve_built
 from .linear import LinearModel, ModelBuilder
 
 __all__ = ["build_items_model", "solve_items_ilp"]
@@ -172,25 +171,6 @@ def solve_items_ilp(instance: ItemInstance, *, backend: "str | Backend" = Backen
     if form != "standard":
         raise SolveError(f"form {form!r}: an item instance has only the standard form (the GAP form is "
                          "Problem I's; convert with l3gs_opt.Instance for it)")
-    backend = Backend.parse(backend)
-    started = time.perf_counter()
-    model = build_items_model(instance, slot=slot, presolve_enabled=presolve)
-    naive = build_items_model(instance, slot=slot, presolve_enabled=False).size if presolve else model.size
-    result = solve_model(model, backend, time_limit_s=time_limit_s, relax=relax, options=options)
-    runtime = time.perf_counter() - started
-    bound = None if result.bound is None else result.bound + model.constant
-    details: dict[str, Any] = {"presolve": dict(model.stats), **dict(result.details)}
-    message = result.message
-    if relax:
-        arrivals: list = []
-        status = Status.FEASIBLE if result.status is Status.OPTIMAL else result.status
-        message = f"LP relaxation: bound only, empty schedule; {message}"
-    else:
-        arrivals = model.schedule(result.values) if result.values is not None else []
-        status = result.status
-        if result.values is None and status in (Status.TIME_LIMIT, Status.FEASIBLE):
-            message = f"no incumbent found: the empty schedule is returned; {message}"
-    return finish_items_solution(instance, arrivals, problem=model.problem, method="lp" if relax else "ilp",
-                                 status=status, bound=bound, runtime_s=runtime, slot=slot, backend=backend.value,
-                                 backend_version=result.version, size_before=naive, size_after=model.size,
-                                 message=message, details=details)
+    return solve_built(instance, lambda enabled: build_items_model(instance, slot=slot, presolve_enabled=enabled),
+                       backend=backend, slot=slot, time_limit_s=time_limit_s, presolve=presolve, relax=relax,
+                       options=options)
