@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -77,6 +77,27 @@ def evaluate_objective(instance: Instance, arrivals: Iterable[Arrival], *, slot:
     return math.fsum(values.tolist())
 
 
+def budget_violations(spent: Mapping[int, int], bandwidth: Sequence[int], *, cumulative: bool) -> list[str]:
+    """Budget rules broken by ``spent[t]`` bytes arriving in slot t, in exact integers: per slot,
+    or (``cumulative``) the bytes by slot t against the bandwidth of slots 0..t (first breach only).
+    Shared by both instance forms."""
+    bandwidth = [int(b) for b in bandwidth]
+    problems: list[str] = []
+    if not cumulative:
+        for t in sorted(spent):
+            if 0 <= t < len(bandwidth) and spent[t] > bandwidth[t]:
+                problems.append(f"slot {t}: {spent[t]} bytes arrive, budget is {bandwidth[t]} bytes")
+        return problems
+    used = budget = 0
+    for t, b in enumerate(bandwidth):
+        used += spent.get(t, 0)
+        budget += b
+        if used > budget:
+            problems.append(f"slots 0..{t}: {used} bytes arrive, cumulative budget is {budget} bytes")
+            break
+    return problems
+
+
 def feasibility_violations(instance: Instance, arrivals: Iterable[Arrival], *,
                            slot: int | None = None) -> list[str]:
     """Every rule the schedule breaks, as readable strings (empty list: feasible).
@@ -103,19 +124,7 @@ def feasibility_violations(instance: Instance, arrivals: Iterable[Arrival], *,
             problems.append(f"chunk {(j, l)} is already held")
         seen[(j, l)] = t
         spent[t] += int(inst.cost[j, l])
-    bandwidth = [int(b) for b in inst.bandwidth]
-    if inst.options.budget == "per_slot" or slot is not None:
-        for t in sorted(spent):
-            if 0 <= t < inst.T and spent[t] > bandwidth[t]:
-                problems.append(f"slot {t}: {spent[t]} bytes arrive, budget is {bandwidth[t]} bytes")
-    else:
-        used = budget = 0
-        for t in range(inst.T):
-            used += spent.get(t, 0)
-            budget += bandwidth[t]
-            if used > budget:
-                problems.append(f"slots 0..{t}: {used} bytes arrive, cumulative budget is {budget} bytes")
-                break
+    problems += budget_violations(spent, inst.bandwidth, cumulative=inst.options.budget == "cumulative" and slot is None)
     if inst.layered:
         strict = not inst.options.same_slot_layers
         for (j, l), t in seen.items():

@@ -18,6 +18,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from .evaluate import budget_violations
 from .items import ItemInstance
 from .solution import Solution, finish_solution
 
@@ -94,19 +95,7 @@ def item_violations(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *
             problems.append(f"item {i} is already held")
         seen[i] = t
         spent[t] += int(inst.cost[i])
-    bandwidth = [int(b) for b in inst.bandwidth]
-    if inst.options.budget == "per_slot" or slot is not None:
-        for t in sorted(spent):
-            if spent[t] > bandwidth[t]:
-                problems.append(f"slot {t}: {spent[t]} bytes arrive, budget is {bandwidth[t]} bytes")
-    else:
-        used = budget = 0
-        for t in range(inst.T):
-            used += spent.get(t, 0)
-            budget += bandwidth[t]
-            if used > budget:
-                problems.append(f"slots 0..{t}: {used} bytes arrive, cumulative budget is {budget} bytes")
-                break
+    problems += budget_violations(spent, inst.bandwidth, cumulative=inst.options.budget == "cumulative" and slot is None)
     strict = not inst.options.same_slot_layers
     for i, t in seen.items():
         for p in inst.parents[i]:
