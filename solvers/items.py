@@ -394,51 +394,11 @@ def solve_items_rolling(instance: ItemInstance, solver: str, *, future: bool = F
 
 def solve_items_mpc(instance: ItemInstance, horizon: int, *, slot: int | None = None,
                     time_limit_s: float | None = None, backend: str = "highs", with_bound: bool = True) -> Solution:
-    """``mpc:H``: each slot, solve the item ILP over the next ``horizon`` slots given what is held,
-    commit the first slot's arrivals, roll on (unspent bytes join the window's first slot under a
-    cumulative budget; each window gets an equal share of the time left)."""
-    from l3gs_opt.models import solve_items_ilp
+    """``mpc:H`` on the item form: :func:`l3gs_opt.solvers.rolling.solve_mpc` (one loop, both forms)."""
+    from .rolling import solve_mpc
 
-    name = f"mpc:{horizon}"
-    if slot is not None:
-        raise SolveError(f"method {name!r} schedules the whole horizon: slot does not apply")
-    if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-        raise SolveError(f"method {name!r}: H = {horizon!r} must be a positive integer (slots)")
-    inst = instance
-    started = time.perf_counter()
-    cumulative = inst.options.budget == "cumulative"
-    bandwidth = np.asarray(inst.bandwidth, dtype=np.int64)
-    held = inst.held.copy()
-    arrivals: list[tuple[int, int, int]] = []
-    carry, stopped, window_limits = 0, "", 0
-    for t in range(inst.T):
-        left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
-        if left is not None and left <= 0:
-            stopped = f"time limit reached before slot {t}; later slots send nothing"
-            break
-        end = min(inst.T, t + int(horizon))
-        bw = bandwidth[t:end].copy()
-        if cumulative:
-            bw[0] += carry
-        window = inst.replace(bandwidth=bw, utility=inst.utility[t:end], held=held, names=None, meta={})
-        sol = solve_items_ilp(window, backend=backend, time_limit_s=None if left is None else left / (inst.T - t))
-        window_limits += sol.status is Status.TIME_LIMIT
-        spent = 0
-        for j, i, tt in sol.arrivals:
-            if tt == 0:
-                arrivals.append((j, i, t))
-                held[i] = True
-                spent += int(inst.cost[i])
-        if cumulative:
-            carry = int(bw[0]) - spent
-    schedule_s = time.perf_counter() - started
-    bound, bound_s = items_lp_bound(inst) if with_bound else (None, 0.0)
-    return finish_items_solution(inst, arrivals, problem="items", method=name,
-                                 status=Status.TIME_LIMIT if stopped else Status.FEASIBLE, bound=bound,
-                                 runtime_s=time.perf_counter() - started,
-                                 message=stopped or f"{name}: receding horizon; bound is the LP relaxation",
-                                 details={"schedule_s": schedule_s, "bound_s": bound_s,
-                                          "windows_at_time_limit": int(window_limits), "backend": backend})
+    return solve_mpc(instance, horizon, slot=slot, time_limit_s=time_limit_s, backend=backend,
+                     with_bound=with_bound)
 
 
 # -- brute force ------------------------------------------------------------------------------------

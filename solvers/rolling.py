@@ -243,16 +243,19 @@ def solve_rolling(instance: Instance, solver: str, *, future: bool = False, slot
                        with_bound=with_bound)
 
 
-def solve_mpc(instance: Instance, horizon: int, *, slot: int | None = None, time_limit_s: float | None = None,
+def solve_mpc(instance: Any, horizon: int, *, slot: int | None = None, time_limit_s: float | None = None,
               backend: str = "highs", with_bound: bool = True, **_ignored: Any) -> Solution:
-    """``mpc:H``: each slot, solve Problem I/II exactly over the next ``horizon`` slots (ILP on
-    ``backend``) given what is held, commit the first slot's arrivals, roll on.
+    """``mpc:H``: each slot, solve the problem exactly over the next ``horizon`` slots (ILP on
+    ``backend``) given what is held, commit the first slot's arrivals, roll on. Either instance
+    form: Problems I-IV (``Instance``) or the item form (``ItemInstance``, arrivals ``(object,
+    item, t)``).
 
     Under the cumulative budget the bytes not yet spent are added to the window's first slot,
     so the window's cumulative budgets are the real ones. Each window gets an equal share of
     the time left.
     """
-    from l3gs_opt.models import solve_ilp
+    from l3gs_opt.items import ItemInstance
+    from l3gs_opt.models import solve_ilp, solve_items_ilp
 
     name = f"mpc:{horizon}"
     if slot is not None:
@@ -260,14 +263,18 @@ def solve_mpc(instance: Instance, horizon: int, *, slot: int | None = None, time
     if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
         raise SolveError(f"method {name!r}: H = {horizon!r} must be a positive integer (slots)")
     inst = instance
+    items = isinstance(inst, ItemInstance)
+    solve_window = solve_items_ilp if items else solve_ilp
+
+    def unit(j: int, l: int) -> Any:   # what an arrival (j, l or item, t) adds to ``held``
+        return l if items else (j, l)
+
     started = time.perf_counter()
     cumulative = inst.options.budget == "cumulative"
     bandwidth = np.asarray(inst.bandwidth, dtype=np.int64)
     held = inst.held.copy()
     arrivals: list[tuple[int, int, int]] = []
-    carry = 0
-    stopped = ""
-    window_limits = 0
+    carry, stopped, window_limits = 0, "", 0
     for t in range(inst.T):
         left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
         if left is not None and left <= 0:
@@ -277,21 +284,24 @@ def solve_mpc(instance: Instance, horizon: int, *, slot: int | None = None, time
         bw = bandwidth[t:end].copy()
         if cumulative:
             bw[0] += carry
-        window = Instance(representation=inst.representation, bandwidth=bw, cost=inst.cost,
-                          utility=inst.utility[t:end], held=held, options=inst.options)
-        share = None if left is None else left / (inst.T - t)
-        sol = solve_ilp(window, backend=backend, time_limit_s=share)
+        window = inst.replace(bandwidth=bw, utility=inst.utility[t:end], held=held, names=None, meta={})
+        sol = solve_window(window, backend=backend, time_limit_s=None if left is None else left / (inst.T - t))
         window_limits += sol.status is Status.TIME_LIMIT
-        first = [(j, l, t) for j, l, tt in sol.arrivals if tt == 0]
         spent = 0
-        for j, l, _ in first:
-            held[j, l] = True
-            spent += int(inst.cost[j, l])
-        arrivals.extend(first)
+        for j, l, tt in sol.arrivals:
+            if tt == 0:
+                arrivals.append((j, l, t))
+                held[unit(j, l)] = True
+                spent += int(inst.cost[unit(j, l)])
         if cumulative:
             carry = int(bw[0]) - spent
     schedule_s = time.perf_counter() - started
-    bound, bound_s = _bound(inst, with_bound)
+    if items:
+        from .items import items_lp_bound
+
+        bound, bound_s = items_lp_bound(inst) if with_bound else (None, 0.0)
+    else:
+        bound, bound_s = _bound(inst, with_bound)
     details = {"schedule_s": schedule_s, "bound_s": bound_s, "windows_at_time_limit": int(window_limits),
                "backend": backend}
     return finish_solution(inst, arrivals, problem=inst.problem, method=name,
