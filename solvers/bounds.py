@@ -11,6 +11,7 @@ import time
 
 from l3gs_opt.errors import BackendUnavailableError
 from l3gs_opt.instance import Instance
+from l3gs_opt.items import ItemInstance
 
 __all__ = ["LP_BOUND_SLACK", "lp_bound"]
 
@@ -20,16 +21,20 @@ __all__ = ["LP_BOUND_SLACK", "lp_bound"]
 LP_BOUND_SLACK = 1e-7
 
 
-def lp_bound(instance: Instance, *, slot: int | None = None) -> tuple[float | None, float]:
-    """Upper bound on Problem I/II (or the single-slot MCKP at ``slot``) and the seconds it took.
+def lp_bound(instance: "Instance | ItemInstance", *, slot: int | None = None) -> tuple[float | None, float]:
+    """Upper bound on Problem I/II or an item instance (or the single-slot MCKP at ``slot``) and the
+    seconds it took.
 
     Returns ``(None, seconds)`` when HiGHS is not installed or reports no bound.
     """
-    from l3gs_opt.models import build_model, solve_model
+    from l3gs_opt.models import build_items_model, build_model, solve_model
 
     started = time.perf_counter()
     try:
-        model = build_model(instance, slot=slot)
+        if isinstance(instance, ItemInstance):   # the item form's ILP, same relaxation
+            model = build_items_model(instance, slot=slot)
+        else:
+            model = build_model(instance, slot=slot)
         result = solve_model(model, "highs", relax=True)
     except BackendUnavailableError:
         return None, time.perf_counter() - started

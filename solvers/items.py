@@ -33,14 +33,15 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from l3gs_opt.errors import BackendUnavailableError, SolveError
+from l3gs_opt.errors import SolveError
 from l3gs_opt.items import ItemInstance, item_gain
 from l3gs_opt.items_eval import finish_items_solution
 from l3gs_opt.solution import Solution, Status
 
 from . import _mckp
 from ._mckp import MckpResult, OptionTable
-from .bounds import LP_BOUND_SLACK
+from .mckp import resolve_slot
+from .bounds import lp_bound
 from .brute_force import MAX_SCHEDULES
 
 __all__ = ["MAX_CLOSED_SETS", "ITEM_METHODS", "closed_sets", "item_slot_table", "solve_items",
@@ -231,17 +232,6 @@ def _chosen(table: OptionTable, sets: list[list[tuple[int, ...]]], choice: np.nd
 
 # -- single slot ------------------------------------------------------------------------------------
 
-def _resolve_slot(instance: ItemInstance, slot: int | None, method: str) -> int:
-    if slot is None:
-        if instance.T == 1:
-            return 0
-        raise SolveError(f"method {method!r} solves one slot's MCKP: pass slot (0..{instance.T - 1}) for an "
-                         f"instance with T = {instance.T} slots, or use rolling:{method} for the whole horizon")
-    if isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or not 0 <= slot < instance.T:
-        raise SolveError(f"slot = {slot!r}: must be an integer in 0..{instance.T - 1}")
-    return int(slot)
-
-
 def _picker(name: str, backend: str) -> Picker:
     from .rolling import slot_picker
 
@@ -253,7 +243,7 @@ def solve_items_slot(instance: ItemInstance, solver: str, *, slot: int | None = 
     """The single-slot MCKP of an item instance at ``slot`` given ``held``, by ``solver`` (``bb``,
     ``dp``, ``greedy``, ``fptas:EPS``); ``problem = "MCKP"``, objective the utility shown at the slot."""
     started = time.perf_counter()
-    slot = _resolve_slot(instance, slot, solver)
+    slot = resolve_slot(instance, slot, solver)
     pick = _picker(solver, backend)
     inst = instance
     gain, base = item_gain(inst, inst.utility[slot:slot + 1])
@@ -276,20 +266,9 @@ def solve_items_slot(instance: ItemInstance, solver: str, *, slot: int | None = 
 # -- the LP bound -----------------------------------------------------------------------------------
 
 def items_lp_bound(instance: ItemInstance) -> tuple[float | None, float]:
-    """Upper bound on the item problem: its presolved ILP's LP relaxation by HiGHS, plus the held
-    constant and ``LP_BOUND_SLACK`` relative; ``(None, seconds)`` when HiGHS is missing."""
-    from l3gs_opt.models import build_items_model, solve_model
-
-    started = time.perf_counter()
-    try:
-        model = build_items_model(instance)
-        result = solve_model(model, "highs", relax=True)
-    except BackendUnavailableError:
-        return None, time.perf_counter() - started
-    if result.bound is None:
-        return None, time.perf_counter() - started
-    value = result.bound + model.constant
-    return value + LP_BOUND_SLACK * abs(value), time.perf_counter() - started
+    """Upper bound on the item problem: :func:`l3gs_opt.solvers.bounds.lp_bound` (its presolved
+    ILP's LP relaxation by HiGHS, plus the held constant and ``LP_BOUND_SLACK`` relative)."""
+    return lp_bound(instance)
 
 
 # -- rolling schedulers -------------------------------------------------------------------------------

@@ -39,8 +39,8 @@ from ._mckp import OptionTable
 __all__ = ["slot_table", "table_arrivals", "resolve_slot", "solve_bb", "solve_dp", "solve_fptas", "solve_greedy"]
 
 
-def resolve_slot(instance: Instance, slot: int | None, method: str) -> int:
-    """The slot a single-slot method solves: ``slot``, or 0 for a one-slot instance.
+def resolve_slot(instance: Any, slot: int | None, method: str) -> int:
+    """The slot a single-slot method solves (either instance form): ``slot``, or 0 for a one-slot instance.
 
     Raises
     ------

@@ -134,7 +134,7 @@ def _arrivals(table: OptionTable, choice: np.ndarray, held: np.ndarray, slot: in
     return out
 
 
-def _bound(instance: Instance, with_bound: bool) -> tuple[float | None, float]:
+def _bound(instance: Any, with_bound: bool) -> tuple[float | None, float]:
     if not with_bound:
         return None, 0.0
     return lp_bound(instance)
@@ -296,12 +296,7 @@ def solve_mpc(instance: Any, horizon: int, *, slot: int | None = None, time_limi
         if cumulative:
             carry = int(bw[0]) - spent
     schedule_s = time.perf_counter() - started
-    if items:
-        from .items import items_lp_bound
-
-        bound, bound_s = items_lp_bound(inst) if with_bound else (None, 0.0)
-    else:
-        bound, bound_s = _bound(inst, with_bound)
+    bound, bound_s = _bound(inst, with_bound)
     details = {"schedule_s": schedule_s, "bound_s": bound_s, "windows_at_time_limit": int(window_limits),
                "backend": backend}
     return finish_solution(inst, arrivals, problem=inst.problem, method=name,
