@@ -98,6 +98,21 @@ def budget_violations(spent: Mapping[int, int], bandwidth: Sequence[int], *, cum
     return problems
 
 
+def first_breach(spent: Mapping[int, int], bandwidth: Sequence[int], *, cumulative: bool) -> int:
+    """The first slot whose budget ``spent`` breaks (per slot, or cumulative up to it); the last slot
+    when none does. The repairs of both instance forms drop a chunk arriving there (or, cumulative,
+    by then)."""
+    if not cumulative:
+        return next((t for t in sorted(spent) if spent[t] > int(bandwidth[t])), len(bandwidth) - 1)
+    used = budget = 0
+    for t, b in enumerate(bandwidth):
+        used += spent.get(t, 0)
+        budget += int(b)
+        if used > budget:
+            return t
+    return len(bandwidth) - 1
+
+
 def feasibility_violations(instance: Instance, arrivals: Iterable[Arrival], *,
                            slot: int | None = None) -> list[str]:
     """Every rule the schedule breaks, as readable strings (empty list: feasible).
@@ -177,18 +192,8 @@ def repair_schedule(instance: Instance, arrivals: Iterable[Arrival], *,
         spent: dict[int, int] = defaultdict(int)
         for (j, l), t in current.items():
             spent[t] += int(inst.cost[j, l])
-        if inst.options.budget == "per_slot" or slot is not None:
-            bad_t = next(t for t in sorted(spent) if spent[t] > int(inst.bandwidth[t]))
-            pool = [(j, l) for (j, l), t in current.items() if t == bad_t]
-        else:
-            used = budget = 0
-            bad_t = inst.T - 1
-            for t in range(inst.T):
-                used += spent.get(t, 0)
-                budget += int(inst.bandwidth[t])
-                if used > budget:
-                    bad_t = t
-                    break
-            pool = [(j, l) for (j, l), t in current.items() if t <= bad_t]
+        cumulative = inst.options.budget == "cumulative" and slot is None
+        bad_t = first_breach(spent, inst.bandwidth, cumulative=cumulative)
+        pool = [(j, l) for (j, l), t in current.items() if (t <= bad_t if cumulative else t == bad_t)]
         j, l = min(pool, key=lambda jl: (value[jl] / inst.cost[jl], -jl[1]))
         drop(j, l)

@@ -78,6 +78,19 @@ def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
     return nested_array(value, name, _DIMS[name], integer=integer)
 
 
+def check_head(data: Mapping[str, Any], keys: tuple[str, ...], required: tuple[str, ...], schema: str, *,
+               error: type[InstanceError] = InstanceError) -> None:
+    """No unknown key (a typo must not drop data), every required key, the expected ``schema``."""
+    for key in data:
+        if key not in keys:
+            raise error(str(key), f"unknown key (known: {', '.join(keys)})")
+    for key in required:
+        if key not in data:
+            raise error(key, "missing")
+    if data["schema"] != schema:
+        raise error("schema", f"{_brief(data['schema'])}: expected {schema!r}")
+
+
 def instance_from_dict(data: Any) -> Instance:
     """Validate a decoded ``l3gs-opt/instance@1`` JSON object and build the instance.
 
@@ -89,14 +102,7 @@ def instance_from_dict(data: Any) -> Instance:
     """
     if not isinstance(data, Mapping):
         raise InstanceError("instance", "must be a JSON object")
-    for key in data:
-        if key not in _KEYS:
-            raise InstanceError(str(key), f"unknown key (known: {', '.join(_KEYS)})")
-    for key in _REQUIRED:
-        if key not in data:
-            raise InstanceError(key, "missing")
-    if data["schema"] != SCHEMA:
-        raise InstanceError("schema", f"{data['schema']!r}: expected {SCHEMA!r}")
+    check_head(data, _KEYS, _REQUIRED, SCHEMA)
     if not isinstance(data["representation"], str):
         raise InstanceError("representation", "must be a string")
     held = data.get("held")
@@ -170,11 +176,7 @@ def load_instance(path: str | os.PathLike[str]) -> Instance:
     is_npz, data = read_problem_file(path, _KEYS, _DIMS)
     if not is_npz:
         return instance_from_dict(data)
-    for key in _REQUIRED:
-        if key not in data:
-            raise InstanceError(key, "missing")
-    if data["schema"] != SCHEMA:
-        raise InstanceError("schema", f"{data['schema']!r}: expected {SCHEMA!r}")
+    check_head(data, _KEYS, _REQUIRED, SCHEMA)
     return Instance(representation=data["representation"], bandwidth=data["bandwidth"],
                     cost=data["cost"], utility=data["utility"], held=data.get("held"),
                     slot_s=data.get("slot_s", 1.0), options=Options.from_dict(data.get("options")),

@@ -18,7 +18,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .evaluate import budget_violations
+from .evaluate import budget_violations, first_breach
 from .items import ItemInstance
 from .solution import Solution, finish_solution
 
@@ -152,19 +152,9 @@ def repair_items(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *,
         spent: dict[int, int] = defaultdict(int)
         for i, t in current.items():
             spent[t] += int(inst.cost[i])
-        if inst.options.budget == "per_slot" or slot is not None:
-            bad_t = next(t for t in sorted(spent) if spent[t] > int(inst.bandwidth[t]))
-            pool = [i for i, t in current.items() if t == bad_t]
-        else:
-            used = budget = 0
-            bad_t = inst.T - 1
-            for t in range(inst.T):
-                used += spent.get(t, 0)
-                budget += int(inst.bandwidth[t])
-                if used > budget:
-                    bad_t = t
-                    break
-            pool = [i for i, t in current.items() if t <= bad_t]
+        cumulative = inst.options.budget == "cumulative" and slot is None
+        bad_t = first_breach(spent, inst.bandwidth, cumulative=cumulative)
+        pool = [i for i, t in current.items() if (t <= bad_t if cumulative else t == bad_t)]
         drop(min(pool, key=lambda i: (value[i] / inst.cost[i], -i)))
 
 

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .instance_io import nested_array, read_problem_file
+from .instance_io import check_head, nested_array, read_problem_file
 from .items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
 
 __all__ = ["items_from_dict", "load_items", "load_problem", "save_items"]
@@ -41,14 +41,7 @@ def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
 
 
 def _check_head(data: Mapping[str, Any]) -> None:
-    for key in data:
-        if key not in _KEYS:
-            raise ItemInstanceError(str(key), f"unknown key (known: {', '.join(_KEYS)})")
-    for key in _REQUIRED:
-        if key not in data:
-            raise ItemInstanceError(key, "missing")
-    if data["schema"] != ITEMS_SCHEMA:
-        raise ItemInstanceError("schema", f"{_brief(data['schema'])}: expected {ITEMS_SCHEMA!r}")
+    check_head(data, _KEYS, _REQUIRED, ITEMS_SCHEMA, error=ItemInstanceError)
 
 
 def _build(data: Mapping[str, Any]) -> ItemInstance:
