@@ -97,7 +97,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
     return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit, bench=not args.no_bench,
-                    scene=not args.no_scene)
+                    scene=not args.no_scene, experiments=not args.no_experiments)
 
 
 def _csv(text: str | None, kind: type = str) -> list | None:
@@ -318,6 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--time-limit", type=float, default=10.0, metavar="S", help="seconds per exact solve")
     d.add_argument("--no-bench", action="store_true", help="skip the quick benchmark (seconds instead of minutes)")
     d.add_argument("--no-scene", action="store_true", help="skip the scene -> schedule -> picture step")
+    d.add_argument("--no-experiments", action="store_true",
+                   help="skip step 5, the quick run of the paper's experiments (~6-15 min)")
     d.set_defaults(func=_cmd_demo)
     return parser
 

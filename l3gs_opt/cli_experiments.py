@@ -34,10 +34,17 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     if traces is not None and not Path(traces).is_dir():
         traces = _list(traces)
     scenes = None
-    if args.splats is not None:
-        if args.splats < 1000:
-            raise ExperimentError("--splats", f"{args.splats}: must be >= 1000")
-        scenes = [SceneSpec(f"room{args.splats // 1000}k", args.splats, objects=4, sh_degree=1, seed=0)]
+    if args.splats is not None or args.objects is not None or args.room_parts:
+        splats = args.splats if args.splats is not None else (8000 if args.quick else 20_000)
+        if splats < 1000:
+            raise ExperimentError("--splats", f"{splats}: must be >= 1000")
+        objects = args.objects if args.objects is not None else 4
+        if not 1 <= objects <= 12:
+            raise ExperimentError("--objects", f"{objects}: must be in 1..12")
+        # The name keys the bundle cache: a different segmentation is a different scene.
+        name = f"room{splats // 1000}k" + (f"-o{objects}" if objects != 4 else "") + \
+            ("-parts" if args.room_parts else "")
+        scenes = [SceneSpec(name, splats, objects=objects, sh_degree=1, seed=0, room_parts=args.room_parts)]
     plan = make_plan(quick=args.quick, scenes=scenes, variants=_list(args.variants), traces=traces,
                      starts=args.starts, window_s=args.window, paths=_list(args.paths), methods=_list(args.methods),
                      ablations=_list(args.ablations), ablation_methods=_list(args.ablation_methods),
@@ -83,6 +90,11 @@ def register(subparsers) -> None:
     p.add_argument("--ablation-methods", default=None,
                    help="methods run under the ablations (default: l3gs; full runs: every predicting method)")
     p.add_argument("--splats", type=int, default=None, help="one room of this many splats instead of the default")
+    p.add_argument("--objects", type=int, default=None,
+                   help="solids in the room, 1..12 (default 4); with --splats or --room-parts")
+    p.add_argument("--room-parts", action="store_true",
+                   help="the room's floor, ceiling and four walls as six objects of their own (a finer "
+                        "segmentation: no chunk holds most of the bytes)")
     p.add_argument("--width", type=int, default=None, help="render width in pixels (default 160, quick 128)")
     p.add_argument("--height", type=int, default=None, help="render height in pixels (default 120, quick 96)")
     p.add_argument("--time-limit", type=float, default=None, metavar="S",

@@ -121,6 +121,8 @@ class SceneSpec:
     sh_degree: int = 1
     seed: int = 0
     sizes: tuple[int, ...] = ()
+    #: The room's six surfaces as objects of their own (:func:`~l3gs_opt.scene_make.make_scene`).
+    room_parts: bool = False
 
     def __post_init__(self) -> None:
         sizes = tuple(int(s) for s in self.sizes) or _default_sizes(self.splats)
@@ -369,6 +371,10 @@ class ExperimentPlan:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
+        for scene in d["scenes"]:
+            # Written only when set, so plans recorded before the option existed still resume.
+            if not scene["room_parts"]:
+                del scene["room_parts"]
         d["schema"] = "l3gs-opt/experiments-plan@1"
         return json.loads(json.dumps(d))
 
@@ -547,7 +553,8 @@ class _Scene:
         if not self.teacher.exists():
             s = self.spec
             tmp = self.teacher.with_suffix(".tmp.ply")
-            write_ply(make_scene(s.splats, objects=s.objects, sh_degree=s.sh_degree, seed=s.seed), tmp)
+            write_ply(make_scene(s.splats, objects=s.objects, sh_degree=s.sh_degree, seed=s.seed,
+                                 room_parts=s.room_parts), tmp)
             os.replace(tmp, self.teacher)
 
     def bundle(self, variant: str):

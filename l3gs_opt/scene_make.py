@@ -2,7 +2,10 @@
 
 A room (floor, four walls and a ceiling: object id 0) holds ``objects`` distinct solids
 (sphere, box, cylinder, torus, cone, ... : ids 1..objects) standing on the floor around the
-room's centre.  Every surface is covered by flat, overlapping, nearly opaque splats oriented
+room's centre. With ``room_parts`` the six room surfaces are objects of their own (ids 0..5:
+floor, ceiling, walls y=-a, y=+a, x=-a, x=+a; the solids 6..5+objects): the same splats, a finer
+segmentation, as a real scene's segmenter gives (walls and floor are separate segments there
+too), so that no chunk holds most of the scene's bytes.  Every surface is covered by flat, overlapping, nearly opaque splats oriented
 along the surface (normal axis 15 % of the tangent axes), textured with checkers, stripes and
 dots, and given view-dependent colour: SH degree 1 brightens surfaces seen head-on
 (``k * dot(view, -normal)``) and degrees 2-3 add small per-splat sheen.  Objects get
@@ -21,10 +24,12 @@ import numpy as np
 
 from .scene_io import SceneError, SplatScene
 
-__all__ = ["make_scene", "ROOM_HALF", "ROOM_HEIGHT", "OBJECT_DENSITY", "SHAPES", "MIN_SPLATS", "MAX_SPLATS"]
+__all__ = ["make_scene", "ROOM_HALF", "ROOM_HEIGHT", "OBJECT_DENSITY", "SHAPES", "MIN_SPLATS", "MAX_SPLATS", "ROOM_PARTS"]
 
 ROOM_HALF = 4.0
 ROOM_HEIGHT = 3.0
+#: Objects the room becomes with ``room_parts``: floor, ceiling and four walls.
+ROOM_PARTS = 6
 #: Splats per square metre on objects relative to the room's surfaces.
 OBJECT_DENSITY = 12.0
 SHAPES = ("sphere", "box", "cylinder", "torus", "cone")
@@ -200,7 +205,7 @@ def _frames_to_quats(normals: np.ndarray, rng) -> np.ndarray:
 
 
 def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 3,
-               seed: int = 0) -> SplatScene:
+               seed: int = 0, room_parts: bool = False) -> SplatScene:
     """Build a procedural room with ``objects`` textured solids (see the module docstring).
 
     Parameters
@@ -213,6 +218,9 @@ def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 
         0..3.  Degree 0 drops the view dependence.
     seed : int, keyword-only
         Seed of every random choice (layout, colours, sampling).
+    room_parts : bool, keyword-only
+        Give the room's six surfaces their own object ids (see the module docstring); the splats
+        are identical either way.
 
     Returns
     -------
@@ -264,7 +272,9 @@ def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 
     tex = np.where(face == 1, 0.0, tex)
     rgb = base * (0.75 + 0.35 * tex[:, None])
     rgb += rng.normal(0, 0.03, rgb.shape)
-    pts_l.append(p); nrm_l.append(nn); rgb_l.append(rgb); oid_l.append(np.zeros(len(p), int))
+    pts_l.append(p); nrm_l.append(nn); rgb_l.append(rgb)
+    oid_l.append(face.astype(int) if room_parts else np.zeros(len(p), int))
+    first = ROOM_PARTS if room_parts else 1
     spacing_l.append(np.full(len(p), math.sqrt(areas[0] / max(counts[0], 1))))
     shine_l.append(np.full(len(p), 0.08))
     # --- objects
@@ -278,7 +288,7 @@ def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 
         nn = nn @ rz.T
         t = _texture(s["pattern"], uv, s["freq"])[:, None]
         rgb = s["col_a"] * (1 - t) + s["col_b"] * t + rng.normal(0, 0.02, (m, 3))
-        pts_l.append(p); nrm_l.append(nn); rgb_l.append(rgb); oid_l.append(np.full(m, j + 1))
+        pts_l.append(p); nrm_l.append(nn); rgb_l.append(rgb); oid_l.append(np.full(m, first + j))
         spacing_l.append(np.full(m, math.sqrt(areas[j + 1] / max(m, 1))))
         shine_l.append(np.full(m, s["shine"]))
     pts = np.concatenate(pts_l)

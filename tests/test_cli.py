@@ -107,13 +107,38 @@ def test_demo_runs_and_reports(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_full_demo_with_quick_bench(tmp_path, capsys):
-    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"))
+    # Step 5 (the quick experiments, minutes) is checked on a tiny plan by the test below.
+    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--no-experiments")
     assert code == 0, err
     assert out.startswith("1. quick benchmark") and "suite stiff" in out and "all agree" in out
     assert "FLAGS" not in out
     report = (tmp_path / "demo" / "bench" / "report.md").read_text()
     assert "## Suite `pisinger`" in report and "error against run time" in report
     assert "3. scene -> schedule -> picture" in out and (tmp_path / "demo" / "scene" / "scene-story.png").is_file()
+
+
+@pytest.mark.slow
+def test_demo_step_five_runs_the_experiments_and_resumes(tmp_path, capsys, monkeypatch):
+    """The demo's last step on the tiny experiments plan: a report with plots, one line per method,
+    and a second demo in the same folder redoes nothing."""
+    import l3gs_opt.experiments as experiments
+    from test_experiments import _tiny_plan
+
+    plan = _tiny_plan()
+    monkeypatch.setattr(experiments, "make_plan", lambda **kw: plan)
+    args = ("demo", "--out", str(tmp_path / "demo"), "--no-bench", "--no-scene", "--time-limit", "5")
+    code, out, err = run(capsys, *args)
+    assert code == 0, err
+    assert "5. the paper's experiments, quick" in out and "l3gs vs the baselines' mean" in out
+    folder = tmp_path / "demo" / "experiments"
+    runs = (folder / "runs.jsonl").read_text().splitlines()
+    assert len(runs) == len(plan.tasks())
+    assert (folder / "report.md").is_file() and (folder / "ssim_over_time.png").is_file()
+    for method in {m for m, _ in plan.methods}:
+        assert f"    {method} " in out
+    code, out, err = run(capsys, *args)
+    assert code == 0, err
+    assert (folder / "runs.jsonl").read_text().splitlines() == runs
 
 
 def test_item_instances_go_through_solve_and_check(capsys, tmp_path):

@@ -26,6 +26,26 @@ def test_deterministic_and_segmented():
     assert make_scene(4000, sh_degree=0).sh.shape == (4000, 1, 3)
 
 
+def test_room_parts_split_the_room_by_surface_and_keep_the_splats():
+    from l3gs_opt.scene_make import ROOM_HALF, ROOM_HEIGHT, ROOM_PARTS
+
+    whole = make_scene(4000, objects=3, seed=2)
+    parts = make_scene(4000, objects=3, seed=2, room_parts=True)
+    for k in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+        assert np.array_equal(getattr(whole, k), getattr(parts, k)), k
+    room = whole.object_ids == 0
+    # the solids keep their order, shifted past the six surfaces
+    assert np.array_equal(parts.object_ids[~room], whole.object_ids[~room] + ROOM_PARTS - 1)
+    # each surface id holds exactly the room splats on that plane (independent of the sampler's faces)
+    m = parts.means[room]
+    planes = [m[:, 2] == 0, np.isclose(m[:, 2], ROOM_HEIGHT), m[:, 1] == -ROOM_HALF, m[:, 1] == ROOM_HALF,
+              m[:, 0] == -ROOM_HALF, m[:, 0] == ROOM_HALF]
+    ids = parts.object_ids[room]
+    for face, on_plane in enumerate(planes):
+        assert np.all(on_plane[ids == face]) and (ids == face).any()
+    assert ids.max() < ROOM_PARTS
+
+
 def test_view_dependent_colour():
     s = make_scene(3000, seed=1)
     assert np.abs(s.sh[:, 1:4]).max() > 0.1  # degree-1 terms are not zero
