@@ -296,79 +296,27 @@ def solve_items_rolling(instance: ItemInstance, solver: str, *, future: bool = F
     if slot is not None:
         raise SolveError(f"method {name!r} schedules the whole horizon: slot does not apply "
                          f"(use method {solver!r} for one slot)")
-    pick = _picker(solver, backend)
+    from .rolling import RollingForm, run_rolling
+
     inst = instance
-    started = time.perf_counter()
     st = _structure(inst)
-    T = inst.T
     strict = not inst.options.same_slot_layers
-    cumulative = inst.options.budget == "cumulative"
-    bandwidth = [int(b) for b in inst.bandwidth]
-    held = inst.held.copy()
-    arrivals: list[tuple[int, int, int]] = []
-    carry = 0
-    flight: tuple[list[int], int] | None = None   # (items, bytes still to come)
-    all_optimal, stopped, in_flight_count = True, "", 0
-    result: MckpResult | None = None
-    for t in range(T):
-        left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
-        if left is not None and left <= 0:
-            stopped = f"time limit reached before slot {t}; later slots send nothing"
-            break
-        avail = carry + bandwidth[t] if cumulative else bandwidth[t]
-        parent_ok = held.copy()
-        if flight is not None:
-            items, rest = flight
-            if avail < rest:
-                flight = (items, rest - avail)
-                carry = 0
-                continue
-            avail -= rest
-            for i in items:
-                arrivals.append((int(inst.object[i]), i, t))
-                held[i] = True
-            flight = None
-            if not strict:  # what arrived this slot may carry same-slot children
-                parent_ok = held.copy()
-        table, sets = item_slot_table(inst, _gain_rows(inst, t, held, future), held, parent_ok, avail, structure=st)
-        result = pick(table, left)
-        all_optimal &= bool(result.optimal)
-        for i in _chosen(table, sets, result.choice):
-            held[i] = True
-            avail -= int(inst.cost[i])
-            arrivals.append((int(inst.object[i]), i, t))
-        if not cumulative:
-            continue
-        carry = avail
-        to_come = sum(bandwidth[t + 1:])
-        if carry <= 0 or to_come <= 0:
-            continue
-        wide, wide_sets = item_slot_table(inst, _gain_rows(inst, t, held, future), held, held, carry + to_come,
-                                          structure=st)
-        cand = wide.valid & (wide.cost > carry)
-        if not cand.any():
-            continue
-        eff = np.where(cand, wide.value / np.maximum(wide.cost, 1), -np.inf)
-        r, k = np.unravel_index(int(np.argmax(eff)), eff.shape)
-        flight = (list(wide_sets[int(r)][int(wide.level[r, k])]), int(wide.cost[r, k]) - carry)
-        carry = 0
-        in_flight_count += 1
-    schedule_s = time.perf_counter() - started
-    bound, bound_s = items_lp_bound(inst) if with_bound else (None, 0.0)
-    status = Status.TIME_LIMIT if stopped else Status.FEASIBLE
-    if T == 1 and result is not None and all_optimal and not stopped and inst.options.availability == "same_slot":
-        # One slot: the rolling answer is the exact single-slot optimum, i.e. the item problem's.
-        status = Status.OPTIMAL
-        bound = result.bound + math.fsum(item_gain(inst)[1].ravel().tolist())
-    details: dict[str, Any] = {"schedule_s": schedule_s, "bound_s": bound_s,
-                               "bound": "LP relaxation of the item ILP" if with_bound else None,
-                               "closed_set_states": len(st.cache)}
-    if cumulative:
-        details["in_flight_downloads"] = in_flight_count
-    message = stopped or (f"{name}: rolling heuristic; bound is the LP relaxation" if status is not Status.OPTIMAL
-                          else "")
-    return finish_items_solution(inst, arrivals, problem="items", method=name, status=status, bound=bound,
-                                 runtime_s=time.perf_counter() - started, message=message, details=details)
+
+    def table(t: int, held: np.ndarray, fresh: np.ndarray, budget: int):
+        # Under strict precedence an item that arrived this slot is no parent yet.
+        parent_ok = held & ~fresh if strict else held.copy()
+        tab, sets = item_slot_table(inst, _gain_rows(inst, t, held, future), held, parent_ok, budget, structure=st)
+        return tab, lambda row, option: list(sets[row][int(tab.level[row, option])])
+
+    def finish(arrivals, **kw) -> Solution:
+        return finish_items_solution(inst, arrivals, problem="items", **kw)
+
+    form = RollingForm(held=inst.held.copy(), table=table, arrival=lambda i, t: (int(inst.object[i]), int(i), t),
+                       finish=finish, held_value=math.fsum(item_gain(inst)[1].ravel().tolist()),
+                       bound_label="LP relaxation of the item ILP",
+                       details=lambda: {"closed_set_states": len(st.cache)})
+    return run_rolling(inst, _picker(solver, backend), method=name, future=future, time_limit_s=time_limit_s,
+                       with_bound=with_bound, form=form)
 
 
 def solve_items_mpc(instance: ItemInstance, horizon: int, *, slot: int | None = None,

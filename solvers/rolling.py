@@ -28,6 +28,7 @@ so its gap is certified; ``details`` has the scheduling and bound seconds apart.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -41,7 +42,7 @@ from . import _mckp
 from ._mckp import MckpResult, OptionTable
 from .bounds import lp_bound
 
-__all__ = ["SLOT_SOLVERS", "slot_picker", "slot_gains", "run_rolling", "solve_rolling", "solve_mpc"]
+__all__ = ["SLOT_SOLVERS", "slot_picker", "slot_gains", "RollingForm", "chunk_form", "run_rolling", "solve_rolling", "solve_mpc"]
 
 #: Names a rolling scheduler accepts for its per-slot solver (``fptas:EPS`` too).
 SLOT_SOLVERS = ("bb", "dp", "greedy", "ilp")
@@ -120,75 +121,104 @@ def slot_gains(instance: Instance, slot: int, held: np.ndarray, *, future: bool)
     return np.where(held[None], 0.0, np.clip(utility - base[:, :, None], 0.0, None)).sum(axis=0)
 
 
-def _arrivals(table: OptionTable, choice: np.ndarray, held: np.ndarray, slot: int, *,
-              layered: bool) -> list[tuple[int, int, int]]:
-    out: list[tuple[int, int, int]] = []
-    levels = held.sum(axis=1)
-    for i in np.nonzero(choice >= 0)[0]:
-        j = int(table.rows[i])
-        top = int(table.level[i, choice[i]])
-        if layered:
-            out.extend((j, l, slot) for l in range(int(levels[j]), top + 1))
-        else:
-            out.append((j, top, slot))
-    return out
-
-
 def _bound(instance: Any, with_bound: bool) -> tuple[float | None, float]:
     if not with_bound:
         return None, 0.0
     return lp_bound(instance)
 
 
-def run_rolling(instance: Instance, pick: Picker, *, method: str, future: bool = False,
-                time_limit_s: float | None = None, with_bound: bool = True) -> Solution:
-    """Schedule slot by slot with ``pick`` solving each slot's option table (see module doc)."""
+@dataclass(frozen=True)
+class RollingForm:
+    """What the rolling loop needs to know of an instance form (chunks of Problems I-IV, or items).
+
+    ``units`` index ``held`` (a ``(j, l)`` chunk or an item number); ``table(t, held, fresh,
+    budget)`` is the slot's option table, valued at slot ``t`` given ``held``, where ``fresh``
+    marks the units that arrived at the start of the slot (under strict layers nothing may go on
+    top of them in the same slot), with ``decode(row, option)`` giving the units an option sends.
+    """
+
+    held: np.ndarray
+    table: Callable[[int, np.ndarray, np.ndarray, int], tuple[OptionTable, Callable[[int, int], list]]]
+    arrival: Callable[[Any, int], tuple[int, int, int]]
+    finish: Callable[..., Solution]
+    held_value: float          # what the held units show over the horizon (added to one-slot bounds)
+    bound_label: str
+    details: Callable[[], dict[str, Any]] = dict
+
+
+def chunk_form(instance: Instance, *, future: bool) -> RollingForm:
+    """The rolling form of a chunk instance (Problems I-IV)."""
+    inst = instance
+    strict = not inst.options.same_slot_layers
+
+    def table(t: int, held: np.ndarray, fresh: np.ndarray, budget: int):
+        gain = slot_gains(inst, t, held, future=future)
+        if strict:
+            gain[fresh.any(axis=1)] = 0.0   # a layer that arrived this slot takes no layer on top of it now
+        tab = _mckp.build_table(layered=inst.layered, cost=inst.cost, gain=gain, held=held, budget=budget,
+                                same_slot_layers=not strict)
+        levels = held.sum(axis=1)
+
+        def decode(row: int, option: int) -> list[tuple[int, int]]:
+            j, top = int(tab.rows[row]), int(tab.level[row, option])
+            return [(j, l) for l in range(int(levels[j]), top + 1)] if inst.layered else [(j, top)]
+
+        return tab, decode
+
+    def finish(arrivals, **kw) -> Solution:
+        return finish_solution(inst, arrivals, problem=inst.problem, **kw)
+
+    return RollingForm(held=inst.held.copy(), table=table, arrival=lambda u, t: (u[0], u[1], t), finish=finish,
+                       held_value=shown_value(inst)[1], bound_label="LP relaxation of Problem I/II")
+
+
+def run_rolling(instance: Any, pick: Picker, *, method: str, future: bool = False,
+                time_limit_s: float | None = None, with_bound: bool = True,
+                form: RollingForm | None = None) -> Solution:
+    """Schedule slot by slot with ``pick`` solving each slot's option table (see module doc).
+
+    ``form`` adapts another instance form (the item form passes its own); default: chunks.
+    """
     inst = instance
     started = time.perf_counter()
-    T, J = inst.T, inst.J
-    layered = inst.layered
-    strict = not inst.options.same_slot_layers
+    form = form if form is not None else chunk_form(inst, future=future)
+    T = inst.T
     cumulative = inst.options.budget == "cumulative"
     bandwidth = [int(b) for b in inst.bandwidth]
-    held = inst.held.copy()
+    held = form.held
     arrivals: list[tuple[int, int, int]] = []
     carry = 0
-    flight: tuple[list[tuple[int, int]], int] | None = None   # (chunks, bytes still to come)
+    flight: tuple[list, int] | None = None   # (units, bytes still to come)
     all_optimal = True
     stopped = ""
     in_flight_count = 0
+    result: MckpResult | None = None
     for t in range(T):
         left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
         if left is not None and left <= 0:
             stopped = f"time limit reached before slot {t}; later slots send nothing"
             break
         avail = carry + bandwidth[t] if cumulative else bandwidth[t]
-        locked = np.zeros(J, dtype=bool)
+        fresh = np.zeros_like(held)
         if flight is not None:
-            chunks, rest = flight
+            units, rest = flight
             if avail < rest:
-                flight = (chunks, rest - avail)
+                flight = (units, rest - avail)
                 carry = 0
                 continue
             avail -= rest
-            for j, l in chunks:
-                arrivals.append((j, l, t))
-                held[j, l] = True
-                locked[j] = True
+            for u in units:
+                arrivals.append(form.arrival(u, t))
+                held[u] = fresh[u] = True
             flight = None
-        gain = slot_gains(inst, t, held, future=future)
-        if strict and locked.any():
-            gain[locked] = 0.0   # a layer that arrived this slot takes no layer on top of it now
-        table = _mckp.build_table(layered=layered, cost=inst.cost, gain=gain, held=held, budget=avail,
-                                  same_slot_layers=not strict)
+        table, decode = form.table(t, held, fresh, avail)
         result = pick(table, left)
         all_optimal &= bool(result.optimal)
-        chosen = _arrivals(table, result.choice, held, t, layered=layered)
-        for j, l, _ in chosen:
-            held[j, l] = True
-            avail -= int(inst.cost[j, l])
-            locked[j] = True
-        arrivals.extend(chosen)
+        for row in np.nonzero(result.choice >= 0)[0]:
+            for u in decode(int(row), int(result.choice[row])):
+                held[u] = True
+                avail -= int(inst.cost[u])
+                arrivals.append(form.arrival(u, t))
         if not cumulative:
             continue
         carry = avail
@@ -197,37 +227,32 @@ def run_rolling(instance: Instance, pick: Picker, *, method: str, future: bool =
             continue
         # Start an in-flight download with the spare bytes: the most efficient option that does
         # not fit them but fits the bytes still to come.
-        gain = slot_gains(inst, t, held, future=future)
-        wide = _mckp.build_table(layered=layered, cost=inst.cost, gain=gain, held=held, budget=carry + to_come,
-                                 same_slot_layers=not strict)
+        wide, wide_decode = form.table(t, held, np.zeros_like(held), carry + to_come)
         if wide.n == 0:
             continue
         cand = wide.valid & (wide.cost > carry)
         if not cand.any():
             continue
         eff = np.where(cand, wide.value / np.maximum(wide.cost, 1), -np.inf)
-        i, k = np.unravel_index(int(np.argmax(eff)), eff.shape)
-        j = int(wide.rows[i])
-        top = int(wide.level[i, k])
-        chunks = [(j, l) for l in range(int(held[j].sum()), top + 1)] if layered else [(j, top)]
-        flight = (chunks, int(wide.cost[i, k]) - carry)
+        r, k = np.unravel_index(int(np.argmax(eff)), eff.shape)
+        flight = (wide_decode(int(r), int(k)), int(wide.cost[r, k]) - carry)
         carry = 0
         in_flight_count += 1
     schedule_s = time.perf_counter() - started
     bound, bound_s = _bound(inst, with_bound)
     status = Status.TIME_LIMIT if stopped else Status.FEASIBLE
-    if T == 1 and all_optimal and not stopped and inst.options.availability == "same_slot":
-        # One slot: the rolling answer is the exact single-slot optimum, i.e. Problem I/II's.
+    if T == 1 and result is not None and all_optimal and not stopped and inst.options.availability == "same_slot":
+        # One slot: the rolling answer is the exact single-slot optimum, i.e. the whole problem's.
         status = Status.OPTIMAL
-        bound = result.bound + shown_value(inst)[1]
+        bound = result.bound + form.held_value
     details: dict[str, Any] = {"schedule_s": schedule_s, "bound_s": bound_s,
-                               "bound": "LP relaxation of Problem I/II" if with_bound else None}
+                               "bound": form.bound_label if with_bound else None, **form.details()}
     if cumulative:
         details["in_flight_downloads"] = in_flight_count
     message = stopped or (f"{method}: rolling heuristic; bound is the LP relaxation" if status is not Status.OPTIMAL
                           else "")
-    return finish_solution(inst, arrivals, problem=inst.problem, method=method, status=status, bound=bound,
-                           runtime_s=time.perf_counter() - started, message=message, details=details)
+    return form.finish(arrivals, method=method, status=status, bound=bound, runtime_s=time.perf_counter() - started,
+                       message=message, details=details)
 
 
 def solve_rolling(instance: Instance, solver: str, *, future: bool = False, slot: int | None = None,
