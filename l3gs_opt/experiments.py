@@ -739,7 +739,11 @@ def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: 
     if link_dp_states(inst) <= MAX_STATES:
         sol = solve_link_dp(inst)
     else:
-        sol = solve(inst, "ilp", backend="highs", time_limit_s=time_limit_s)
+        # HiGHS 1.14's root-reduced-cost heuristic ran a sub-MIP that ignored the time limit and the
+        # interrupt callbacks for > 20 min on a 14-object ceiling (a one-link Problem I, 60 slots);
+        # without it the same solve stopped at its 20 s limit.
+        sol = solve(inst, "ilp", backend="highs", time_limit_s=time_limit_s,
+                    options={"mip_heuristic_run_root_reduced_cost": False})
     rec = dict(base)
     rec.update({
         "kind": "ceiling", "problem": "I" if inst.layered else "II", "method": sol.method, "backend": sol.backend,

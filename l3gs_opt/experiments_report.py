@@ -32,7 +32,9 @@ PAPER = {
     "setup": "the paper: 8 real scenes, ~180k splats x 248 B (~45 MB) per scene, Lumos5G traces scaled to a "
              "mean of 11.8 Mbit/s, 60 s windows, 1 s slots, VR users' head traces.",
     "missing": "The paper's per-figure values (ablations, variance classes, latency, Distill/Hierarchy) are "
-               "not quoted: we had the abstract's headline, not the figures' numbers.",
+               "not quoted: the copies of the paper we could read (arXiv 2504.05517v1 as stored text) held "
+               "its abstract and introduction only, and the authors' repository holds code, not result "
+               "tables; we quote the abstract's headline and do not guess numbers off plots we have not seen.",
 }
 LATENCY_KEYS = ("prediction", "utility", "scheduling", "rendering")
 _CONDITIONS = ("none", "true_bandwidth", "true_viewport", "true_both")

@@ -24,7 +24,8 @@ from ..linear import LinearModel
 from . import BackendResult
 
 _PRESOLVE_BUG = _pkg_version("highspy").startswith("1.14.")
-_KNOWN = {"threads", "presolve", "random_seed", "mip_feasibility_tolerance", "primal_feasibility_tolerance"}
+_KNOWN = {"threads", "presolve", "random_seed", "mip_feasibility_tolerance", "primal_feasibility_tolerance",
+          "mip_heuristic_run_root_reduced_cost"}
 
 
 def _interrupt_after(h: highspy.Highs, time_limit_s: float) -> None:
