@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -241,16 +242,19 @@ def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.nda
 
 
 def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit_s: float | None,
-                start: np.ndarray | None = None, sparse: bool = True,
-                highs_options: dict | None = None) -> tuple[str, np.ndarray | None, float]:
+                start: np.ndarray | None = None, sparse: bool = True, highs_options: dict | None = None,
+                restart_if: Callable[[float], bool] | None = None) -> tuple[str, np.ndarray | None, float]:
     """Problem A restricted to the pairs in ``mask`` (after reduced-cost fixing), solved by HiGHS
     with the objective cut off at ``incumbent``: only strictly better schedules are searched.
 
     Returns ``(outcome, assignment or None, bound)``: outcome ``"optimal"`` (the assignment is the
     optimum of the restricted problem, or None when no schedule beats ``incumbent``: then the
-    bound is ``incumbent``), or ``"time_limit"`` with HiGHS's dual bound (held constant included;
-    ``inf`` when it has none). ``sparse`` picks the layer-order rows (see :func:`_add_problem_a`);
-    ``highs_options`` are passed to HiGHS as they are.
+    bound is ``incumbent``), ``"time_limit"`` with HiGHS's dual bound (held constant included;
+    ``inf`` when it has none), or ``"restart"``: HiGHS found a schedule of value v (objective,
+    held constant included) with ``restart_if(v)`` true and was stopped there, so that the caller
+    can fix more pairs at the better incumbent and start again (the bound is then HiGHS's dual
+    bound so far, as for ``"time_limit"``). ``sparse`` picks the layer-order rows (see
+    :func:`_add_problem_a`); ``highs_options`` are passed to HiGHS as they are.
     """
     import highspy
 
@@ -271,6 +275,19 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     h.setOptionValue("mip_feasibility_tolerance", 1e-9)
     for key, value in (highs_options or {}).items():
         h.setOptionValue(key, value)
+    restart = [False]
+    if restart_if is not None:
+        def improving(event) -> None:
+            # HiGHS minimises -(profit): its objective is minus ours without the held constant.
+            if restart_if(data.constant - float(event.data_out.objective_function_value)):
+                restart[0] = True
+
+        def interrupt(event) -> None:
+            if restart[0]:
+                event.interrupt()
+
+        h.cbMipImprovingSolution.subscribe(improving)
+        h.cbMipInterrupt.subscribe(interrupt)
     ycol = _add_problem_a(h, data, var, ii, tt, sparse=sparse)
     # Only schedules strictly better than the incumbent (HiGHS minimises -profit).
     h.setOptionValue("objective_bound", float(-(incumbent - data.constant)))
@@ -310,25 +327,28 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     raw = float(info.mip_dual_bound)
     dual = -raw + data.constant if math.isfinite(raw) else math.inf
     # HiGHS's dual bound carries its LP tolerances (as lp_bound's LP value does).
-    return "time_limit", assign, dual + MIP_BOUND_SLACK * abs(dual)
+    return ("restart" if restart[0] else "time_limit"), assign, dual + MIP_BOUND_SLACK * abs(dual)
 
 
 def lp_neighbourhood(data: GapData, x: np.ndarray, allowed: np.ndarray, incumbent: float, *,
                      time_limit_s: float | None, start: np.ndarray | None = None, support: bool = False,
-                     integral_tol: float = 1e-6) -> np.ndarray | None:
+                     band: int = 0, integral_tol: float = 1e-6) -> np.ndarray | None:
     """Best schedule in the neighbourhood of an LP (or master) solution ``x`` [n, T]: a chunk the LP
-    schedules wholly in one slot may arrive there or not at all, every other chunk anywhere it is
-    allowed (a relaxation-induced neighbourhood); with ``support``, every chunk only where ``x`` is
-    positive (for a column-generation master: its restricted master as an integer programme, in
-    arrival terms). Solved by :func:`reduced_mip` with the cut-off at ``incumbent``; None when it
-    finds nothing better."""
+    schedules wholly in slot s may arrive in slots ``s - band .. s + band`` or not at all, every
+    other chunk anywhere it is allowed (``band = 0``: a relaxation-induced neighbourhood; a band
+    of 2 lets whole chunks shift to make room, which found better schedules at J=200); with
+    ``support``, every chunk only where ``x`` is positive (for a column-generation master: its
+    restricted master as an integer programme, in arrival terms). Solved by :func:`reduced_mip`
+    with the cut-off at ``incumbent``; None when it finds nothing better."""
     if support:
         mask = allowed & (x > integral_tol)
     else:
         whole = (x >= 1.0 - integral_tol) & allowed
         mask = allowed.copy()
-        rows = whole.any(axis=1)
-        mask[rows] = whole[rows]
+        rows = np.nonzero(whole.any(axis=1))[0]
+        slot = whole[rows].argmax(axis=1)
+        near = np.abs(np.arange(data.T)[None, :] - slot[:, None]) <= band
+        mask[rows] = allowed[rows] & near
     if start is not None:   # keep the start inside the neighbourhood, so HiGHS begins from it
         on = np.nonzero(start >= 0)[0]
         mask[on, start[on]] = True

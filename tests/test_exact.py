@@ -237,11 +237,16 @@ def test_all_held() -> None:
     assert rel_close(sol.objective, float(inst.utility.sum()))
 
 
-def test_time_limit_returns_valid_bound_and_feasible_schedule() -> None:
+@pytest.mark.parametrize("objects, slots, seed, limit_s", [(12, 30, 1, 0.5), (16, 40, 2, 6.0)],
+                         ids=["before-the-mip", "inside-the-mip"])
+def test_time_limit_returns_valid_bound_and_feasible_schedule(objects, slots, seed, limit_s) -> None:
+    """A limit that stops the run early, or long enough to reach the reduced MIP but (usually) too
+    short to close it: a feasible answer, ``time_limit`` with a gap or ``optimal`` (never
+    ``feasible``), and a bound no smaller than the ILP's optimum."""
     from l3gs_opt.synth import synth_instance
 
-    inst = synth_instance(objects=12, layers=4, slots=30, seed=1)
-    sol = solve(inst, "exact", time_limit_s=0.5)
+    inst = synth_instance(objects=objects, layers=4, slots=slots, seed=seed)
+    sol = solve(inst, "exact", time_limit_s=limit_s)
     _check(inst, sol)
     assert sol.status in (Status.TIME_LIMIT, Status.OPTIMAL)
     if sol.status is Status.TIME_LIMIT:
@@ -299,3 +304,101 @@ def test_paper_scale_short_run_is_certified() -> None:
     heur = solve(inst, "rolling-future:bb")
     assert sol.objective >= heur.objective
     assert sol.bound <= heur.bound * (1 + 1e-6)   # at least as tight as the LP bound
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_reduced_mip_restart_returns_feasible_schedule_and_valid_bound(seed: int) -> None:
+    """``restart_if`` true at every improving schedule: HiGHS stops at the first one (or closes
+    first); the schedule is feasible in exact bytes and the bound is still >= the optimum."""
+    rng = np.random.default_rng(3000 + seed)
+    inst = random_instance(rng, T=7, J=5, L=3, options=ACCEPTED[seed], tight=0.3)
+    data = gap_data(inst)
+    ref = solve(inst, "ilp")
+    seen: list[float] = []
+    outcome, cand, bound = reduced_mip(data, data.allowed, -math.inf, time_limit_s=None,
+                                       restart_if=lambda v: seen.append(v) or True)
+    assert outcome in ("restart", "optimal")
+    if cand is not None:
+        assert assignment_feasible(data, cand)
+        assert assignment_value(data, cand) <= ref.objective * (1 + 1e-9) + 1e-12
+    assert bound >= ref.objective * (1 - 1e-9)
+    if outcome == "restart":
+        assert seen and cand is not None
+        assert rel_close(seen[-1], assignment_value(data, cand), rtol=1e-6)   # HiGHS's value vs. ours
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_lp_neighbourhood_bands_are_nested(seed: int) -> None:
+    """Band 0 within band 1 within band T (which is the whole problem): solved exactly, their
+    optima never decrease, and band T equals the core's ILP."""
+    from l3gs_opt.solvers.lagrange import lp_multipliers
+
+    rng = np.random.default_rng(4000 + seed)
+    inst = random_instance(rng, T=6, J=4, L=3, options=ACCEPTED[seed], tight=0.3)
+    data = gap_data(inst)
+    _, _, x = lp_multipliers(data)
+    ref = solve(inst, "ilp")
+    values = []
+    for band in (0, 1, data.T):
+        cand = lp_neighbourhood(data, x, data.allowed, -math.inf, time_limit_s=None, band=band)
+        if cand is not None:
+            assert assignment_feasible(data, cand)
+        values.append(data.constant if cand is None else assignment_value(data, cand))
+    assert values[0] <= values[1] * (1 + 1e-9) + 1e-12 and values[1] <= values[2] * (1 + 1e-9) + 1e-12
+    assert rel_close(values[2], ref.objective)
+
+
+def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
+    """With RESTART_SHRINK = 1 HiGHS is restarted at every improving schedule it finds (no start
+    heuristics, one-slot windows: the primal side leaves it some to find): the answers still equal
+    the core's ILP, and at least one run restarted."""
+    import l3gs_opt.solvers.exact as exact_mod
+
+    monkeypatch.setattr(exact_mod, "RESTART_SHRINK", 1.0)
+    outcomes = []
+    for seed in range(16):
+        inst = random_instance(np.random.default_rng(6000 + seed), T=10, J=8, L=3, tight=0.25)
+        ref = solve(inst, "ilp")
+        sol = solve_exact(inst, heuristics=(), lns_width=1)
+        _check(inst, sol)
+        assert sol.status is Status.OPTIMAL
+        assert rel_close(sol.objective, ref.objective)
+        outcomes += [run["outcome"] for run in sol.details.get("reduced_mip", {}).get("runs", [])]
+    assert "restart" in outcomes
+
+
+def test_subgradient_from_lp_duals_is_a_valid_bound_no_worse_than_its_start() -> None:
+    from l3gs_opt.solvers.lagrange import lp_multipliers
+
+    rng = np.random.default_rng(8)
+    inst = random_instance(rng, T=8, J=5, L=3, tight=0.3)
+    data = gap_data(inst)
+    _, mult, _ = lp_multipliers(data)
+    start = lagrangian_value(data, mult).bound
+    ref = solve(inst, "ilp").objective
+    bound, _, _ = subgradient(data, target=ref, start=mult, iterations=50)
+    assert ref * (1 - 1e-12) <= bound <= start
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), shortfall=st.sampled_from([1e-9, 1e-3, 1e-2]))
+def test_exact_knapsack_fixing_keeps_every_better_schedule(seed: int, opt: int, shortfall: float) -> None:
+    """Fixing with the knapsack solved exactly removes at least what the Dantzig test removes, and
+    never a pair of the optimum when the incumbent value is below it (at the LP duals and at the
+    column-generation duals)."""
+    from l3gs_opt.solvers.lagrange import lp_multipliers
+
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=6, J=4, L=3, options=ACCEPTED[opt], tight=0.3)
+    data = gap_data(inst)
+    ref = solve(inst, "ilp")
+    z = ref.objective * (1 - shortfall) - 1e-12
+    opt_assign = data.assignment(inst, ref.arrivals)
+    on = np.nonzero(opt_assign >= 0)[0]
+    _, mult, _ = lp_multipliers(data)
+    cg = column_generation(data, ColumnPool(data), [], allowed=data.allowed, forced={}, incumbent=-math.inf)
+    for lv in ([lagrangian_value(data, mult)] if mult is not None else []) + [cg.value]:
+        cheap = reduced_cost_fixing(data, lv, lv.bound, z, data.allowed)
+        exact = reduced_cost_fixing(data, lv, lv.bound, z, data.allowed, exact_knapsack=True)
+        assert not (exact & ~cheap).any()
+        assert exact[on, opt_assign[on]].all()
