@@ -97,6 +97,8 @@ def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("error: paths[0]: 'walk' is not one of")
     assert main(["experiments", "--report-only", "--out", str(tmp_path / "none")]) == 2
     assert "error: --out:" in capsys.readouterr().err
+    assert main(["experiments", "--quick", "--objects", "13", "--room-parts", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: --objects: 13: must be in 1..12")
 
 
 # ---------------------------------------------------------------------------------------- runs
