@@ -25,8 +25,9 @@
    stopped and restarted on a smaller model whenever it finds a schedule at which the fixing,
    redone, drops at least ``1 - RESTART_SHRINK`` of its pairs; each run is kept ``MIP_MARGIN_S``
    (plus a little per pair) short of the deadline because HiGHS overruns its limit;
-   ``branching="price"`` - our own best-first branch-and-price on ``x[i,t]`` with column
-   generation (Lagrangian bounds) and fixing at every node.
+   ``branching="price"`` - our own best-first branch-and-price with column generation
+   (Lagrangian bounds) and fixing at every node, branching on "chunk i has arrived by slot t"
+   (children: by t, or after t; either may leave i out), then on ``x[i,t]``.
 
 A time limit returns the best schedule with a valid bound, status ``time_limit``; ``optimal``
 only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` says which bound
@@ -85,7 +86,7 @@ EXACT_FIXING_SHARE = 0.05
 MIP_MARGIN_S, MIP_MARGIN_PER_PAIR_S = 1.0, 5e-5
 #: How the gap is closed after the root: ``hybrid`` - HiGHS branch-and-cut on the model reduced
 #: by Lagrangian fixing, cut off at the incumbent; ``price`` - our own best-first branching on
-#: x[i,t] with column generation (Lagrangian bounds) at every node.
+#: "arrived by slot t", then x[i,t], with column generation (Lagrangian bounds) at every node.
 BRANCHING = ("hybrid", "price")
 #: A node is closed when its bound is within this relative distance of the incumbent: below
 #: GAP_TOL so that a closed tree certifies an optimal gap.
@@ -306,6 +307,37 @@ def _propagate(data: GapData, allowed: np.ndarray, forced: Mapping[int, int]) ->
             floor = int(rows.min()) + d
             up = data.upper[up]
     return allowed
+
+
+def _cumulative_split(data: GapData, x: np.ndarray, mask: np.ndarray) -> tuple[int, int] | None:
+    """The (item, slot) whose "arrived by slot t" is most fractional in the master solution ``x``
+    (mass both at or before t and after t), weighted by profit; None when there is none."""
+    cum = np.cumsum(x, axis=1)
+    split = np.minimum(cum, cum[:, -1:] - cum)
+    split[split < 1e-6] = 0.0
+    if split.max(initial=0.0) <= 0:
+        return None
+    score = split * (1.0 + data.profit / (data.profit.max() + 1e-300))
+    i, t = np.unravel_index(int(np.argmax(score)), score.shape)
+    return int(i), int(t)
+
+
+def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.ndarray, np.ndarray]:
+    """Children of a cumulative branch: item i arrives in slots <= t (or never), or after t (or
+    never); in the second, its upper layers cannot arrive before t + 1 + d either."""
+    d = 1 if data.strict else 0
+    by, after = mask.copy(), mask.copy()
+    by[i, t + 1:] = False
+    after[i, :t + 1] = False
+    up, floor = int(data.upper[i]), t + 1 + d
+    while up >= 0 and floor > 0:
+        after[up, :min(floor, data.T)] = False
+        rows = np.nonzero(after[up])[0]
+        if len(rows) == 0:
+            break
+        floor = int(rows.min()) + d
+        up = int(data.upper[up])
+    return by, after
 
 
 # -- the solver ---------------------------------------------------------------------------------
@@ -552,33 +584,39 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                 continue
             mask = reduced_cost_fixing(data, cg.value, cg.value.bound, z, mask) if cg.value.bound <= node_bound \
                 else mask
-            # Branch on the most fractional master value (ties: larger profit); when the master
-            # is integral, on a pair the knapsacks chose that the master did not.
+            # Branch on the most fractional "arrived by slot t" (both children keep the DW bound
+            # moving: on T60-J20-s4, 240 s, it ended 47 above the optimum against 101 for
+            # branching on x[i,t]); when that is integral, on the most fractional x[i,t] (ties:
+            # larger profit), then on a pair the knapsacks chose that the master did not.
             x = cg.xbar
-            frac = np.minimum(x, 1.0 - x) * (mask & (x > 1e-6) & (x < 1 - 1e-6))
-            if frac.max(initial=0.0) > 0:
-                score = frac * (1.0 + data.profit / (data.profit.max() + 1e-300))
-                i, t = np.unravel_index(int(np.argmax(score)), score.shape)
+            split = _cumulative_split(data, x, mask)
+            if split is not None:
+                by, after = _split_masks(data, mask, *split)
+                children = [(dict(forced), by), (dict(forced), after)]
             else:
-                diff = cg.value.x & (x < 0.5) & mask
-                for i_f in forced:
-                    diff[i_f, :] = False
-                if not diff.any():
-                    diff = (x > 0.5) & mask
+                frac = np.minimum(x, 1.0 - x) * (mask & (x > 1e-6) & (x < 1 - 1e-6))
+                if frac.max(initial=0.0) > 0:
+                    score = frac * (1.0 + data.profit / (data.profit.max() + 1e-300))
+                    i, t = np.unravel_index(int(np.argmax(score)), score.shape)
+                else:
+                    diff = cg.value.x & (x < 0.5) & mask
                     for i_f in forced:
                         diff[i_f, :] = False
-                if not diff.any():
-                    # Nothing left to branch on: keep the node's bound in the answer's bound.
-                    unresolved = max(unresolved, node_bound)
-                    continue
-                i, t = np.unravel_index(int(np.argmax(diff * (data.profit + 1.0))), diff.shape)
-            i, t = int(i), int(t)
-            child_one = dict(forced)
-            child_one[i] = t
-            mask_zero = mask.copy()
-            mask_zero[i, t] = False
-            heapq.heappush(heap, (-node_bound, next(counter), child_one, mask, None))
-            heapq.heappush(heap, (-node_bound, next(counter), dict(forced), mask_zero, None))
+                    if not diff.any():
+                        diff = (x > 0.5) & mask
+                        for i_f in forced:
+                            diff[i_f, :] = False
+                    if not diff.any():
+                        # Nothing left to branch on: keep the node's bound in the answer's bound.
+                        unresolved = max(unresolved, node_bound)
+                        continue
+                    i, t = np.unravel_index(int(np.argmax(diff * (data.profit + 1.0))), diff.shape)
+                i, t = int(i), int(t)
+                mask_zero = mask.copy()
+                mask_zero[i, t] = False
+                children = [({**forced, i: t}, mask), (dict(forced), mask_zero)]
+            for child_forced, child_mask in children:
+                heapq.heappush(heap, (-node_bound, next(counter), child_forced, child_mask, None))
             trace.append((now(), z, max(z, max((-h[0] for h in heap), default=z))))
         if branching == "price" or nodes:
             open_bound = max([-h[0] for h in heap if not _closed(-h[0], z)] + [unresolved], default=-math.inf)

@@ -402,3 +402,33 @@ def test_exact_knapsack_fixing_keeps_every_better_schedule(seed: int, opt: int, 
         exact = reduced_cost_fixing(data, lv, lv.bound, z, data.allowed, exact_knapsack=True)
         assert not (exact & ~cheap).any()
         assert exact[on, opt_assign[on]].all()
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_cumulative_branch_children_cover_every_schedule(seed: int, opt: int) -> None:
+    """A cumulative branch (item i by slot t, or after it) loses no feasible schedule: every one in
+    the parent's mask lies in a child, and each child keeps only its side of t for i."""
+    import itertools as it
+
+    from l3gs_opt.solvers.exact import _split_masks
+
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=4, J=2, L=3, options=ACCEPTED[opt], tight=0.8)
+    data = gap_data(inst)
+    if data.n == 0:
+        return
+    schedules = np.array([a for a in it.product(range(-1, data.T), repeat=data.n)
+                          if assignment_feasible(data, np.asarray(a))])
+    on = schedules >= 0
+    items = np.broadcast_to(np.arange(data.n), schedules.shape)
+
+    def inside(mask: np.ndarray) -> np.ndarray:   # per schedule: every arrival allowed by mask
+        return np.where(on, mask[items, np.maximum(schedules, 0)], True).all(axis=1)
+
+    for i in range(data.n):
+        for t in range(data.T):
+            by, after = _split_masks(data, data.allowed, i, t)
+            assert not by[i, t + 1:].any() and not after[i, :t + 1].any()
+            lost = ~(inside(by) | inside(after))
+            assert not lost.any(), (i, t, schedules[lost][0])
