@@ -167,25 +167,32 @@ class Master:
             return
         data = self.data
         d = 1 if data.strict else 0
-        slots = np.array([self.pool.slot[c] if c >= 0 else data.T for c in self.cols], dtype=np.int64)
-        member = {}
+        # Row (u, t) over the master's columns: +1 where the column's slot is <= t and holds u,
+        # -1 where its slot is <= t - d and holds lo(u) (artificial columns: never).
+        cols = np.asarray(self.cols, dtype=np.int64)
+        real = np.nonzero(cols >= 0)[0]
+        slots = np.full(len(cols), data.T + 1, dtype=np.int64)
+        slots[real] = np.asarray(self.pool.slot, dtype=np.int64)[cols[real]]
+        member = np.zeros((len(cols), data.n), dtype=np.int8)
+        if len(real):
+            sizes = [len(self.pool.items[c]) for c in cols[real]]
+            member[np.repeat(real, sizes), np.concatenate([self.pool.items[c] for c in cols[real]])] = 1
+        uu = np.asarray([u for u, _ in rows], dtype=np.int64)
+        tt = np.asarray([t for _, t in rows], dtype=np.int64)
+        lo = data.lower[uu]
+        if (lo < 0).any():
+            raise ValueError(f"precedence row for item {int(uu[lo < 0][0])}, which has no lower layer")
         starts, idx, val = [], [], []
+        for block in range(0, len(rows), 256):   # (rows x columns) at a time: bounded memory
+            b = slice(block, block + 256)
+            coef = (member[:, uu[b]].T * (slots[None, :] <= tt[b, None])
+                    - member[:, lo[b]].T * (slots[None, :] <= tt[b, None] - d))
+            r, c = np.nonzero(coef)
+            starts.extend((len(idx) + np.searchsorted(r, np.arange(len(coef)))).tolist())
+            idx.extend(c.tolist())
+            val.extend(coef[r, c].astype(np.float64).tolist())
         base = self.h.getNumRow()
         for k, (u, t) in enumerate(rows):
-            lo = int(data.lower[u])
-            coef: dict[int, float] = {}
-            for pos, c in enumerate(self.cols):
-                if c < 0 or slots[pos] > t:
-                    continue
-                s = member.get(c)
-                if s is None:
-                    s = member[c] = set(self.pool.items[c].tolist())
-                v = (1.0 if u in s else 0.0) - (1.0 if lo in s and slots[pos] <= t - d else 0.0)
-                if v:
-                    coef[pos] = v
-            starts.append(len(idx))
-            idx.extend(coef)
-            val.extend(coef.values())
             self.row_index[(u, t)] = base + k
             self._rows_of.setdefault(u, []).append(((u, t), base + k))
             self.rows.append((u, t))
