@@ -283,7 +283,6 @@ def _propagate(data: GapData, allowed: np.ndarray, forced: Mapping[int, int]) ->
     upper layers no earlier. None when that leaves a forced item nowhere to go."""
     allowed = allowed.copy()
     d = 1 if data.strict else 0
-    T = data.T
     for i, t in forced.items():
         if not allowed[i, t]:
             return None
@@ -296,20 +295,27 @@ def _propagate(data: GapData, allowed: np.ndarray, forced: Mapping[int, int]) ->
                 return None
             cap = int(np.nonzero(allowed[lo])[0].max()) - d
             lo = data.lower[lo]
-        up, floor = data.upper[i], t + d
-        while up >= 0:
-            allowed[up, :min(floor, T)] = False
-            if up in forced and not allowed[up, forced[up]]:
-                return None
-            rows = np.nonzero(allowed[up])[0]
-            if len(rows) == 0:
-                break
-            floor = int(rows.min()) + d
-            up = data.upper[up]
+        _exclude_upper_before(data, allowed, i, t + d)
+    if any(not allowed[i, t] for i, t in forced.items()):
+        return None
     return allowed
 
 
-def _cumulative_split(data: GapData, x: np.ndarray, mask: np.ndarray) -> tuple[int, int] | None:
+def _exclude_upper_before(data: GapData, allowed: np.ndarray, i: int, floor: int) -> None:
+    """In place: the layer above i cannot arrive before slot ``floor``, the one above that not
+    before its own earliest allowed slot (+ d), and so on up the object."""
+    d = 1 if data.strict else 0
+    up = int(data.upper[i])
+    while up >= 0:
+        allowed[up, :min(floor, data.T)] = False
+        rows = np.nonzero(allowed[up])[0]
+        if len(rows) == 0:
+            break
+        floor = int(rows.min()) + d
+        up = int(data.upper[up])
+
+
+def _cumulative_split(data: GapData, x: np.ndarray) -> tuple[int, int] | None:
     """The (item, slot) whose "arrived by slot t" is most fractional in the master solution ``x``
     (mass both at or before t and after t), weighted by profit; None when there is none."""
     cum = np.cumsum(x, axis=1)
@@ -325,18 +331,10 @@ def _cumulative_split(data: GapData, x: np.ndarray, mask: np.ndarray) -> tuple[i
 def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.ndarray, np.ndarray]:
     """Children of a cumulative branch: item i arrives in slots <= t (or never), or after t (or
     never); in the second, its upper layers cannot arrive before t + 1 + d either."""
-    d = 1 if data.strict else 0
     by, after = mask.copy(), mask.copy()
     by[i, t + 1:] = False
     after[i, :t + 1] = False
-    up, floor = int(data.upper[i]), t + 1 + d
-    while up >= 0 and floor > 0:
-        after[up, :min(floor, data.T)] = False
-        rows = np.nonzero(after[up])[0]
-        if len(rows) == 0:
-            break
-        floor = int(rows.min()) + d
-        up = int(data.upper[up])
+    _exclude_upper_before(data, after, i, t + 1 + (1 if data.strict else 0))
     return by, after
 
 
@@ -589,7 +587,7 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
             # branching on x[i,t]); when that is integral, on the most fractional x[i,t] (ties:
             # larger profit), then on a pair the knapsacks chose that the master did not.
             x = cg.xbar
-            split = _cumulative_split(data, x, mask)
+            split = _cumulative_split(data, x)
             if split is not None:
                 by, after = _split_masks(data, mask, *split)
                 children = [(dict(forced), by), (dict(forced), after)]

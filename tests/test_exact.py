@@ -3,6 +3,7 @@ incumbents, stiff cases, time limits, and the options it rejects."""
 
 from __future__ import annotations
 
+import itertools as it
 import math
 
 import numpy as np
@@ -17,7 +18,7 @@ from l3gs_opt.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.solution import GAP_TOL, Status
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.colgen import ColumnPool, column_generation
-from l3gs_opt.solvers.exact import local_search, reduced_cost_fixing, round_schedule, solve_exact
+from l3gs_opt.solvers.exact import _split_masks, local_search, reduced_cost_fixing, round_schedule, solve_exact
 from l3gs_opt.solvers.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
                                        lagrangian_value, subgradient)
 from l3gs_opt.solvers.lns import improve_window, lp_neighbourhood, reduced_mip
@@ -409,10 +410,6 @@ def test_exact_knapsack_fixing_keeps_every_better_schedule(seed: int, opt: int, 
 def test_cumulative_branch_children_cover_every_schedule(seed: int, opt: int) -> None:
     """A cumulative branch (item i by slot t, or after it) loses no feasible schedule: every one in
     the parent's mask lies in a child, and each child keeps only its side of t for i."""
-    import itertools as it
-
-    from l3gs_opt.solvers.exact import _split_masks
-
     rng = np.random.default_rng(seed)
     inst = random_instance(rng, T=4, J=2, L=3, options=ACCEPTED[opt], tight=0.8)
     data = gap_data(inst)
