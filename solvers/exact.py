@@ -317,13 +317,24 @@ def _exclude_upper_before(data: GapData, allowed: np.ndarray, i: int, floor: int
 
 def _cumulative_split(data: GapData, x: np.ndarray) -> tuple[int, int] | None:
     """The (item, slot) whose "arrived by slot t" is most fractional in the master solution ``x``
-    (mass both at or before t and after t), weighted by profit; None when there is none."""
+    (mass both at or before t and after t), weighted by how much the profit drops from t to t + 1;
+    among splits at no drop (most of them: an object out of view earns nothing, so its chunk's
+    profit is flat over those slots) by profit. None when there is none.
+
+    Branching where the profit is flat only moves the master's mass to an equally good slot, so
+    the bound does not move (T60-J20-s4: stuck at 307,472.8 after 1,306 nodes started from the
+    optimum; weighted by the drop, proven optimal in 35 nodes).
+    """
     cum = np.cumsum(x, axis=1)
     split = np.minimum(cum, cum[:, -1:] - cum)
     split[split < 1e-6] = 0.0
     if split.max(initial=0.0) <= 0:
         return None
-    score = split * (1.0 + data.profit / (data.profit.max() + 1e-300))
+    drop = np.zeros_like(data.profit)
+    drop[:, :-1] = np.abs(data.profit[:, :-1] - data.profit[:, 1:])
+    score = split * drop
+    if score.max() <= 0:
+        score = split * (1.0 + data.profit / (data.profit.max() + 1e-300))
     i, t = np.unravel_index(int(np.argmax(score)), score.shape)
     return int(i), int(t)
 
