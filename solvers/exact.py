@@ -19,15 +19,16 @@
    fixed).
 4. **Closing the gap**: reduced-cost fixing with every Lagrangian certificate met (the LP duals'
    and the column generation's: a chunk whose forced arrival in slot t cannot beat the incumbent
-   under the knapsack's LP bound is removed from t), then branching: ``branching="hybrid"``
-   (default) - HiGHS branch-and-cut on Problem A reduced by that fixing (layer order through
-   cumulative columns: two non-zeros a row), started from the incumbent and cut off at it, and
-   stopped and restarted on a smaller model whenever it finds a schedule at which the fixing,
-   redone, drops at least ``1 - RESTART_SHRINK`` of its pairs; each run is kept ``MIP_MARGIN_S``
-   (plus a little per pair) short of the deadline because HiGHS overruns its limit;
-   ``branching="price"`` - our own best-first branch-and-price with column generation
-   (Lagrangian bounds) and fixing at every node, branching on "chunk i has arrived by slot t"
-   (children: by t, or after t; either may leave i out), then on ``x[i,t]``.
+   under the knapsack's LP bound is removed from t), then branching: ``branching="mip"`` -
+   HiGHS branch-and-cut on Problem A reduced by that fixing (layer order through cumulative
+   columns: two non-zeros a row), started from the incumbent and cut off at it, and stopped and
+   restarted on a smaller model whenever it finds a schedule at which the fixing, redone, drops
+   at least ``1 - RESTART_SHRINK`` of its pairs; each run is kept ``MIP_MARGIN_S`` (plus a little
+   per pair) short of the deadline because HiGHS overruns its limit; ``branching="price"`` - our
+   own best-first branch-and-price with column generation (Lagrangian bounds) and fixing at every
+   node, branching on "chunk i has arrived by slot t" where the profit drops most (children: by
+   t, or after t; either may leave i out), then on ``x[i,t]``; ``branching="both"`` (default) -
+   the two at once, HiGHS in a second thread; the answer carries the smaller of their bounds.
 
 A time limit returns the best schedule with a valid bound, status ``time_limit``; ``optimal``
 only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` says which bound
@@ -42,6 +43,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+import threading
 import time
 from typing import Any, Mapping
 
@@ -84,10 +86,13 @@ EXACT_FIXING_SHARE = 0.05
 #: limit and interrupt (model set-up and clean-up call no callback): 0.4-2.3 s measured on the
 #: 43,715-pair J=200 model at load 3-4, 5.7 s once at load 3 in the recorded benchmark.
 MIP_MARGIN_S, MIP_MARGIN_PER_PAIR_S = 1.0, 5e-5
-#: How the gap is closed after the root: ``hybrid`` - HiGHS branch-and-cut on the model reduced
-#: by Lagrangian fixing, cut off at the incumbent; ``price`` - our own best-first branching on
-#: "arrived by slot t", then x[i,t], with column generation (Lagrangian bounds) at every node.
-BRANCHING = ("hybrid", "price")
+#: How the gap is closed after the root: ``mip`` - HiGHS branch-and-cut on the model reduced by
+#: Lagrangian fixing, cut off at the incumbent; ``price`` - our own best-first branch-and-price
+#: (column generation and fixing at every node); ``both`` (default) - the two at once, HiGHS in a
+#: second thread (it releases the GIL), sharing schedules and stopping when either closes: at
+#: J=20 the MIP proves s1-s3 and branch-and-price s4. Large instances (column generation skipped
+#: at the root) run ``mip`` only.
+BRANCHING = ("both", "mip", "price")
 #: A node is closed when its bound is within this relative distance of the incumbent: below
 #: GAP_TOL so that a closed tree certifies an optimal gap.
 CLOSE_TOL = 0.1 * GAP_TOL
@@ -374,7 +379,7 @@ def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadl
 
 def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
                 heuristics: tuple[str, ...] | None = None, max_nodes: int | None = None, lns_width: int = 8,
-                branching: str = "hybrid",
+                branching: str = "both",
                 **_ignored: Any) -> Solution:
     """Solve Problem I/III exactly (see the module doc) or stop at ``time_limit_s`` seconds.
 
@@ -518,56 +523,84 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
         allowed_root = fixed_at(z, allowed0, exact=True)
         details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())
         details["root"]["incumbent"] = z
-        # Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask).
-        counter = itertools.count()
-        unresolved = -math.inf
-        heap: list = []
-        if branching == "hybrid" and not _closed(bound, z) and not out_of_time():
-            # HiGHS on the reduced model; each time it finds a schedule at which fixing would drop
-            # enough pairs, it is stopped, the fixing redone at the new incumbent and HiGHS
-            # restarted from it on the smaller model.
+        use_mip = branching in ("both", "mip") and not _closed(bound, z) and not out_of_time()
+        # Column generation at every node is too slow where it is skipped at the root (large instances).
+        use_price = branching == "price" or (branching == "both" and not big)
+        found: list[np.ndarray] = []     # schedules the MIP side found, handed to the main thread
+        stop = threading.Event()         # set when one side has closed the gap (or at the end)
+        mip: dict[str, Any] = {"bound": math.inf, "kind": "", "hit_limit": False, "runs": []}
+
+        def mip_side(zh: float, start: np.ndarray) -> None:
+            """HiGHS on the model reduced by Lagrangian fixing, cut off at ``zh``; each time it finds
+            a schedule at which fixing would drop enough pairs, it is stopped, the fixing redone at
+            the new incumbent and HiGHS restarted from it on the smaller model. Touches no shared
+            state but ``found`` and ``mip`` (it may run in its own thread, next to the pricing)."""
+            try:
+                _mip_runs(zh, start)
+            except BaseException as exc:   # re-raised in the calling thread
+                mip["error"] = exc
+                stop.set()
+
+        def _mip_runs(zh: float, start: np.ndarray) -> None:
             mask = allowed_root
-            runs: list[dict[str, Any]] = []
             may_restart = True
-            while not _closed(bound, z):
+            while not stop.is_set():
                 left = None if deadline is None else deadline - time.perf_counter()
                 if left is not None:
                     left -= MIP_MARGIN_S + MIP_MARGIN_PER_PAIR_S * float(mask.sum())
                     if left <= 0:
-                        hit_limit = True
+                        mip["hit_limit"] = True
                         break
                 size = int(mask.sum())
 
                 def restart_if(value: float, mask: np.ndarray = mask, size: int = size) -> bool:
-                    return value > z and int(fixed_at(value, mask).sum()) <= RESTART_SHRINK * size
+                    return value > zh and int(fixed_at(value, mask).sum()) <= RESTART_SHRINK * size
 
-                z_before = z
-                outcome, cand, mip_bound = reduced_mip(data, mask, z, time_limit_s=left, start=assign,
-                                                       restart_if=restart_if if may_restart else None)
-                if cand is not None:
-                    try_incumbent(cand, allowed0, {})
-                runs.append({"outcome": outcome, "bound": mip_bound, "variables": size, "seconds": now()})
+                z_before = zh
+                outcome, cand, mip_bound = reduced_mip(data, mask, zh, time_limit_s=left, start=start,
+                                                       restart_if=restart_if if may_restart else None,
+                                                       stop=stop.is_set)
+                if cand is not None:   # (feasible in exact bytes and better than zh: reduced_mip checks)
+                    found.append(cand)
+                    zh, start = assignment_value(data, cand), cand
+                mip["runs"].append({"outcome": outcome, "bound": mip_bound, "variables": size, "seconds": now()})
                 if outcome == "optimal":
                     # Nothing in the mask beats max(z_before, what HiGHS returned), and every
                     # schedule better than z_before lies in the mask.
-                    bound = max(z, mip_bound)
-                    bound_kind = ("Lagrangian reduced-cost fixing, then HiGHS branch-and-cut on the reduced model "
-                                  "(cut off at the incumbent): closed")
-                elif max(z_before, mip_bound) < bound:
-                    bound = max(z_before, mip_bound)
-                    bound_kind = "HiGHS dual bound on the model reduced by Lagrangian fixing"
-                trace.append((now(), z, bound))
+                    mip["bound"] = zh
+                    mip["kind"] = ("Lagrangian reduced-cost fixing, then HiGHS branch-and-cut on the reduced model "
+                                   "(cut off at the incumbent): closed")
+                    stop.set()
+                elif max(z_before, mip_bound) < mip["bound"]:
+                    mip["bound"] = max(z_before, mip_bound)
+                    mip["kind"] = "HiGHS dual bound on the model reduced by Lagrangian fixing"
+                trace.append((now(), max(z, zh), min(bound, mip["bound"])))
                 if outcome != "restart":
-                    hit_limit = outcome == "time_limit"
+                    mip["hit_limit"] = outcome == "time_limit"
                     break
                 # (HiGHS's schedule failing the exact check would restart forever: run on instead.)
-                may_restart = z > z_before
-                mask = fixed_at(z, mask, exact=True)
-            if runs:
-                details["reduced_mip"] = {**runs[-1], "variables": runs[0]["variables"], "runs": runs}
-        elif not _closed(bound, z):
+                may_restart = zh > z_before
+                mask = fixed_at(zh, mask, exact=True)
+
+        worker = None
+        if use_mip and use_price:
+            worker = threading.Thread(target=mip_side, args=(z, assign.copy()), name="exact-mip", daemon=True)
+            worker.start()
+        elif use_mip:
+            mip_side(z, assign)
+        # Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask, root result).
+        counter = itertools.count()
+        unresolved = -math.inf
+        heap: list = []
+        if use_price and not _closed(bound, z):
             heap.append((-bound, next(counter), {}, allowed_root, root))
-        while branching == "price" and heap and not out_of_time() and (max_nodes is None or nodes < max_nodes):
+
+        def take_found() -> None:
+            while found:
+                try_incumbent(found.pop(), allowed0, {})
+
+        while use_price and heap and not stop.is_set() and not out_of_time() and (max_nodes is None or nodes < max_nodes):
+            take_found()
             neg, _, forced, allowed, pre = heapq.heappop(heap)
             node_bound = -neg
             if _closed(node_bound, z):
@@ -584,7 +617,7 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                     continue
                 node_bound = min(node_bound, cg.bound)
                 try_incumbent(round_schedule(data, cg.xbar, mask, forced=forced), mask, forced)
-                if out_of_time() and not _closed(node_bound, z):
+                if (out_of_time() or stop.is_set()) and not _closed(node_bound, z):
                     heapq.heappush(heap, (-node_bound, next(counter), forced, allowed, None))
                     break
             else:
@@ -593,9 +626,8 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                 continue
             mask = reduced_cost_fixing(data, cg.value, cg.value.bound, z, mask) if cg.value.bound <= node_bound \
                 else mask
-            # Branch on the most fractional "arrived by slot t" (both children keep the DW bound
-            # moving: on T60-J20-s4, 240 s, it ended 47 above the optimum against 101 for
-            # branching on x[i,t]); when that is integral, on the most fractional x[i,t] (ties:
+            # Branch on the most fractional "arrived by slot t" weighted by the profit drop there
+            # (see _cumulative_split); when that is integral, on the most fractional x[i,t] (ties:
             # larger profit), then on a pair the knapsacks chose that the master did not.
             x = cg.xbar
             split = _cumulative_split(data, x)
@@ -626,12 +658,30 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                 children = [({**forced, i: t}, mask), (dict(forced), mask_zero)]
             for child_forced, child_mask in children:
                 heapq.heappush(heap, (-node_bound, next(counter), child_forced, child_mask, None))
-            trace.append((now(), z, max(z, max((-h[0] for h in heap), default=z))))
-        if branching == "price" or nodes:
+            trace.append((now(), z, min(mip["bound"], max(z, max((-h[0] for h in heap), default=z)))))
+        if use_price:
             open_bound = max([-h[0] for h in heap if not _closed(-h[0], z)] + [unresolved], default=-math.inf)
+            price_bound = min(max(z, open_bound), max(root.bound, z))
             if open_bound == -math.inf:
-                bound_kind = "branch-and-price tree closed (every node's Lagrangian bound <= incumbent)"
-            bound = min(max(z, open_bound), max(root.bound, z))
+                stop.set()   # the tree is closed: the MIP side may stop
+            if price_bound < bound:
+                bound = price_bound
+                bound_kind = ("branch-and-price tree closed (every node's Lagrangian bound <= incumbent)"
+                              if open_bound == -math.inf else
+                              "branch-and-price: the largest Lagrangian bound of the open nodes")
+        if worker is not None:
+            stop.set()
+            worker.join()
+        if "error" in mip:
+            raise mip["error"]
+        take_found()
+        if use_mip:
+            hit_limit = mip["hit_limit"]
+            details["reduced_mip"] = ({**mip["runs"][-1], "variables": mip["runs"][0]["variables"], "runs": mip["runs"]}
+                                      if mip["runs"] else {})
+            if max(z, mip["bound"]) < bound:
+                bound, bound_kind = max(z, mip["bound"]), mip["kind"]
+        bound = max(bound, z)
         trace.append((now(), z, bound))
     stopped = hit_limit or out_of_time() or (max_nodes is not None and nodes >= max_nodes)
     gap = 0.0 if bound == z else (bound - z) / abs(bound) if bound else math.inf

@@ -243,7 +243,8 @@ def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.nda
 
 def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit_s: float | None,
                 start: np.ndarray | None = None, sparse: bool = True, highs_options: dict | None = None,
-                restart_if: Callable[[float], bool] | None = None) -> tuple[str, np.ndarray | None, float]:
+                restart_if: Callable[[float], bool] | None = None,
+                stop: Callable[[], bool] | None = None) -> tuple[str, np.ndarray | None, float]:
     """Problem A restricted to the pairs in ``mask`` (after reduced-cost fixing), solved by HiGHS
     with the objective cut off at ``incumbent``: only strictly better schedules are searched.
 
@@ -254,7 +255,9 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     held constant included) with ``restart_if(v)`` true and was stopped there, so that the caller
     can fix more pairs at the better incumbent and start again (the bound is then HiGHS's dual
     bound so far, as for ``"time_limit"``). ``sparse`` picks the layer-order rows (see
-    :func:`_add_problem_a`); ``highs_options`` are passed to HiGHS as they are.
+    :func:`_add_problem_a`); ``highs_options`` are passed to HiGHS as they are. ``stop()``
+    returning true (polled in HiGHS's loops, e.g. set by another thread) ends the run as
+    ``"time_limit"``.
     """
     import highspy
 
@@ -282,12 +285,14 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
             if restart_if(data.constant - float(event.data_out.objective_function_value)):
                 restart[0] = True
 
+        h.cbMipImprovingSolution.subscribe(improving)
+    if restart_if is not None or stop is not None:
         def interrupt(event) -> None:
-            if restart[0]:
+            if restart[0] or (stop is not None and stop()):
                 event.interrupt()
 
-        h.cbMipImprovingSolution.subscribe(improving)
-        h.cbMipInterrupt.subscribe(interrupt)
+        for hook in (h.cbSimplexInterrupt, h.cbMipInterrupt):
+            hook.subscribe(interrupt)
     ycol = _add_problem_a(h, data, var, ii, tt, sparse=sparse)
     # Only schedules strictly better than the incumbent (HiGHS minimises -profit).
     h.setOptionValue("objective_bound", float(-(incumbent - data.constant)))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools as it
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from l3gs_opt.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.solution import GAP_TOL, Status
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.colgen import ColumnPool, column_generation
+import l3gs_opt.solvers.exact as exact_module
 from l3gs_opt.solvers.exact import _split_masks, local_search, reduced_cost_fixing, round_schedule, solve_exact
 from l3gs_opt.solvers.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
                                        lagrangian_value, subgradient)
@@ -51,7 +53,7 @@ def test_equals_brute_force(opts: Options, seed: int) -> None:
     assert sol.gap <= GAP_TOL
 
 
-@pytest.mark.parametrize("branching", ["hybrid", "price"])
+@pytest.mark.parametrize("branching", ["both", "mip", "price"])
 @pytest.mark.parametrize("seed", range(5))
 def test_equals_core_ilp(branching: str, seed: int) -> None:
     rng = np.random.default_rng(1000 + seed)
@@ -280,6 +282,28 @@ def test_rejects_what_it_cannot_decompose(kw: dict, match: str) -> None:
     inst = random_instance(rng, **kw)
     with pytest.raises(SolveError, match=match):
         solve(inst, "exact")
+
+
+def test_both_sides_run_together_join_and_pass_errors_on(monkeypatch) -> None:
+    """``branching="both"``: the MIP thread ends with the call, and its failure is the caller's."""
+    for seed in range(40):
+        inst = random_instance(np.random.default_rng(seed), T=8, J=5, L=3, tight=0.3)
+        sol = solve_exact(inst, heuristics=())
+        assert not any(t.name == "exact-mip" for t in threading.enumerate())
+        if sol.details.get("reduced_mip") and sol.details["nodes"]:
+            break
+    else:
+        pytest.skip("no instance needed both sides")
+    assert sol.status is Status.OPTIMAL
+    assert sol.objective == pytest.approx(solve(inst, "ilp").objective, rel=1e-9, abs=1e-9)
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("the MIP side failed")
+
+    monkeypatch.setattr(exact_module, "reduced_mip", failing)
+    with pytest.raises(RuntimeError, match="the MIP side failed"):
+        solve_exact(inst, heuristics=())
+    assert not any(t.name == "exact-mip" for t in threading.enumerate())
 
 
 def test_rejects_slot_and_unknown_branching() -> None:
