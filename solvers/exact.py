@@ -539,10 +539,11 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
             """HiGHS on the model reduced by Lagrangian fixing, cut off at ``zh``; each time it finds
             a schedule at which fixing would drop enough pairs, it is stopped, the fixing redone at
             the new incumbent and HiGHS restarted from it on the smaller model. Touches no shared
-            state but ``found`` and ``mip`` (it may run in its own thread, next to the pricing)."""
+            state but ``found`` and ``mip`` (it may run in its own thread, next to the pricing);
+            an exception is kept in ``mip["error"]`` and raised again by the caller."""
             try:
                 _mip_runs(zh, start)
-            except BaseException as exc:   # re-raised in the calling thread
+            except BaseException as exc:
                 mip["error"] = exc
                 stop.set()
 
