@@ -57,6 +57,7 @@ from l3gs_opt.solution import GAP_TOL, Solution, Status, finish_solution
 from .colgen import ColumnPool, column_generation
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
+from .repair import level_repair
 from .lagrange import GapData, LagrangeValue, assignment_feasible, assignment_value, gap_data, knapsack
 
 __all__ = ["solve_exact", "local_search", "round_schedule", "reduced_cost_fixing"]
@@ -81,6 +82,8 @@ BAND_WIDTH, BAND_SHARE = 2, 0.25
 #: The reduced MIP is stopped and restarted on a smaller model when HiGHS finds a schedule at
 #: which reduced-cost fixing keeps at most this share of the pairs it was given.
 RESTART_SHRINK = 0.9
+#: Time share (of the time left) of the level-keeping repair after the window LNS (:mod:`.repair`).
+REPAIR_SHARE = 0.15
 #: Time share (of the time left) for the exact-knapsack fixing test before each reduced MIP.
 EXACT_FIXING_SHARE = 0.05
 #: Seconds (plus per allowed pair) kept back from each HiGHS MIP: HiGHS 1.14 runs past its time
@@ -524,6 +527,15 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
             cand = window_sweep(data, assign, allowed0, width=lns_width, deadline=lns_deadline)
             try_incumbent(cand, allowed0, {})
             details["root"]["after_lns"] = z
+            trace.append((now(), z, bound))
+        # Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left.
+        if not _closed(bound, z):
+            left = None if deadline is None else deadline - time.perf_counter()
+            rep = level_repair(data, assign, allowed0,
+                               deadline=None if left is None else time.perf_counter() + REPAIR_SHARE * left)
+            try_incumbent(rep.assign, allowed0, {})
+            details["root"]["repair"] = {"incumbent": z, "repairs": rep.repairs, "tried": rep.tried,
+                                         "undecided": rep.undecided, "seconds": rep.seconds}
             trace.append((now(), z, bound))
         allowed_root = fixed_at(z, allowed0, exact=True)
         details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())
