@@ -538,7 +538,8 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                                deadline=None if left is None else time.perf_counter() + REPAIR_SHARE * left)
             try_incumbent(rep.assign, allowed0, {})
             details["root"]["repair"] = {"incumbent": z, "repairs": rep.repairs, "tried": rep.tried,
-                                         "undecided": rep.undecided, "seconds": rep.seconds}
+                                         "undecided": rep.undecided, "ruled_out": rep.ruled_out,
+                                         "seconds": rep.seconds}
             trace.append((now(), z, bound))
         allowed_root = fixed_at(z, allowed0, exact=True)
         details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())

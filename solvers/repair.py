@@ -42,6 +42,7 @@ class RepairResult:
     repairs: int            #: repackings adopted
     tried: int              #: CP-SAT runs
     undecided: int          #: runs that ended at their time limit with neither a schedule nor a proof
+    ruled_out: int          #: targets the byte count ruled out before CP-SAT (:func:`_room_for`)
     seconds: float
 
 
@@ -50,6 +51,39 @@ def _profit_now(data: GapData, assign: np.ndarray) -> np.ndarray:
     out = np.zeros(data.n)
     out[on] = data.profit[np.nonzero(on)[0], assign[on]]
     return out
+
+
+def _keep_mask(allowed: np.ndarray, profit: np.ndarray, cur: np.ndarray, assign: np.ndarray) -> np.ndarray:
+    """Pairs where a chunk earns at least ``cur`` (and each chunk's slot in ``assign``)."""
+    keep = allowed & (profit >= cur[:, None])
+    on = np.nonzero(assign >= 0)[0]
+    keep[on, assign[on]] = True
+    return keep
+
+
+def _room_for(data: GapData, keep: np.ndarray, cur: np.ndarray, target: int, target_better: np.ndarray) -> bool:
+    """False when bytes alone rule the repair of ``target`` out: some slot t by which the chunks
+    that must arrive (those earning more than 0 now, the target, and the layers under them, each by
+    its last allowed slot, a lower layer by its upper's less d) need more than the budgets of slots
+    0..t. A necessary condition: True does not mean CP-SAT will find a schedule. Cheap (O(n + T));
+    on the J=20 schedules it ruled out 6 of 6 to 45 of 49 targets, 33 of 53 on T60-J20-s4."""
+    d = 1 if data.strict else 0
+    rows = keep.copy()
+    rows[target] = target_better
+    has = rows.any(axis=1)
+    last = np.where(has, data.T - 1 - np.argmax(rows[:, ::-1], axis=1), -1)
+    must = cur > 0
+    must[target] = cur[target] >= 0
+    for u in np.argsort(-data.item_l, kind="stable").tolist():   # upper layers first
+        lo = int(data.lower[u])
+        if must[u] and lo >= 0:
+            must[lo] = True
+            last[lo] = min(last[lo], last[u] - d)
+    if (must & (last < 0)).any():
+        return False
+    need = np.zeros(data.T, dtype=np.int64)
+    np.add.at(need, last[must], data.cost[must])
+    return bool((np.cumsum(need) <= np.cumsum(data.budget)).all())
 
 
 def level_repair(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, deadline: float | None,
@@ -62,10 +96,10 @@ def level_repair(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, dead
     best = np.asarray(assign, dtype=np.int64).copy()
     value = assignment_value(data, best)
     scale = float(np.abs(data.profit).max(initial=0.0))
-    repairs = tried = undecided = 0
+    repairs = tried = undecided = ruled_out = 0
 
     def result() -> RepairResult:
-        return RepairResult(best, repairs, tried, undecided, time.perf_counter() - started)
+        return RepairResult(best, repairs, tried, undecided, ruled_out, time.perf_counter() - started)
 
     limit, pending, levels = per_target_s, None, None
     while True:
@@ -76,13 +110,17 @@ def level_repair(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, dead
         targets = targets[np.argsort(-gain[targets], kind="stable")].tolist()
         if pending is not None:
             targets = [i for i in targets if i in pending]
+        keep = _keep_mask(allowed, data.profit, cur, best)
         if targets and levels is None:
-            levels = _LevelModel(data, best, cur, allowed)
+            levels = _LevelModel(data, best, cur, keep)
         improved, unknown = False, []
         for target in targets:
             left = None if deadline is None else deadline - time.perf_counter()
             if left is not None and left <= 0.01:
                 return result()
+            if not _room_for(data, keep, cur, target, better[target]):
+                ruled_out += 1
+                continue
             tried += 1
             status, cand = levels.repack(target, better[target], limit if left is None else min(limit, left),
                                          workers, seed)
@@ -107,19 +145,16 @@ def level_repair(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, dead
 
 class _LevelModel:
     """CP-SAT model of "every chunk earns at least ``cur``" around ``assign`` (built once per
-    incumbent, cloned per target): ``x[i,t]`` for the allowed slots where chunk i earns at least
-    ``cur[i]`` (and its slot in ``assign``), slot budgets in bytes, layer order, at most once, and
-    exactly once where leaving (0) would earn less."""
+    incumbent, cloned per target): ``x[i,t]`` for the pairs in ``keep`` (:func:`_keep_mask`), slot
+    budgets in bytes, layer order, at most once, and exactly once where leaving (0) would earn
+    less."""
 
-    def __init__(self, data: GapData, assign: np.ndarray, cur: np.ndarray, allowed: np.ndarray) -> None:
+    def __init__(self, data: GapData, assign: np.ndarray, cur: np.ndarray, keep: np.ndarray) -> None:
         from ortools.sat.python import cp_model
 
         n, T = data.n, data.T
         d = 1 if data.strict else 0
         self.n, self.cur = n, cur
-        keep = allowed & (data.profit >= cur[:, None])
-        on = np.nonzero(assign >= 0)[0]
-        keep[on, assign[on]] = True
         model = self.model = cp_model.CpModel()
         ii, tt = np.nonzero(keep)
         self.pairs = list(zip(ii.tolist(), tt.tolist()))

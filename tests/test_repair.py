@@ -13,7 +13,7 @@ from core_helpers import random_instance
 from l3gs_opt import Options
 from l3gs_opt.solvers.exact import round_schedule
 from l3gs_opt.solvers.lagrange import assignment_feasible, assignment_value, gap_data
-from l3gs_opt.solvers.repair import GAIN_TOL, level_repair
+from l3gs_opt.solvers.repair import GAIN_TOL, _keep_mask, _profit_now, _room_for, level_repair
 
 ACCEPTED = [Options(availability=a, same_slot_layers=s) for a in ("same_slot", "next_slot") for s in (True, False)]
 
@@ -48,6 +48,30 @@ def test_repair_ends_where_no_schedule_dominates_it_chunk_by_chunk(seed: int, op
     tol = GAIN_TOL * float(np.abs(data.profit).max(initial=0.0))
     dominating = (theirs >= mine).all(axis=1) & (theirs > mine + tol).any(axis=1)
     assert not dominating.any(), schedules[dominating][0]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), tight=st.sampled_from([0.3, 0.8]))
+def test_byte_count_rules_out_only_impossible_repairs(seed: int, opt: int, tight: float) -> None:
+    """Whenever the byte count says a target cannot gain, no feasible schedule (enumerated) gives
+    it more and every other chunk at least its profit."""
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=4, J=2, L=3, options=ACCEPTED[opt], tight=tight, zero_p=0.4)
+    data = gap_data(inst)
+    if data.n == 0:
+        return
+    start = round_schedule(data, rng.random((data.n, data.T)), data.allowed)
+    cur = _profit_now(data, start)
+    keep = _keep_mask(data.allowed, data.profit, cur, start)
+    better = data.allowed & (data.profit > cur[:, None])
+    schedules = np.array([a for a in it.product(range(-1, data.T), repeat=data.n)
+                          if assignment_feasible(data, np.asarray(a, dtype=np.int64))])
+    theirs = _profits(data, schedules)
+    keeps_level = theirs >= cur[None, :]
+    for target in np.nonzero(better.any(axis=1))[0]:
+        if not _room_for(data, keep, cur, int(target), better[target]):
+            others = np.delete(keeps_level, target, axis=1).all(axis=1)
+            assert not (others & (theirs[:, target] > cur[target])).any(), (target, start)
 
 
 def test_repair_finds_a_repacking_local_search_cannot() -> None:
