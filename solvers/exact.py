@@ -523,7 +523,23 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
             neighbourhood(lp_x, band=BAND_WIDTH, share=BAND_SHARE)
         try_incumbent(round_schedule(data, root.value.x.astype(float) + root.xbar, allowed0), allowed0, {})
         trace.append((now(), z, bound))
-        # Window LNS from the repaired root schedule: a share (LNS_SHARE) of the time left.
+        details["root"]["repair"] = []
+
+        def repair() -> None:
+            """Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left."""
+            if _closed(bound, z) or big:
+                return
+            left = None if deadline is None else deadline - time.perf_counter()
+            rep = level_repair(data, assign, allowed0,
+                               deadline=None if left is None else time.perf_counter() + REPAIR_SHARE * left)
+            try_incumbent(rep.assign, allowed0, {})
+            details["root"]["repair"].append({"incumbent": z, "repairs": rep.repairs, "tried": rep.tried,
+                                              "undecided": rep.undecided, "ruled_out": rep.ruled_out,
+                                              "seconds": rep.seconds})
+            trace.append((now(), z, bound))
+
+        # Repair, window LNS from the repaired schedule (LNS_SHARE of the time left), repair again.
+        repair()
         if not _closed(bound, z):
             left = None if deadline is None else deadline - time.perf_counter()
             lns_deadline = None if left is None else time.perf_counter() + LNS_SHARE * left
@@ -531,16 +547,7 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
             try_incumbent(cand, allowed0, {})
             details["root"]["after_lns"] = z
             trace.append((now(), z, bound))
-        # Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left.
-        if not _closed(bound, z) and not big:
-            left = None if deadline is None else deadline - time.perf_counter()
-            rep = level_repair(data, assign, allowed0,
-                               deadline=None if left is None else time.perf_counter() + REPAIR_SHARE * left)
-            try_incumbent(rep.assign, allowed0, {})
-            details["root"]["repair"] = {"incumbent": z, "repairs": rep.repairs, "tried": rep.tried,
-                                         "undecided": rep.undecided, "ruled_out": rep.ruled_out,
-                                         "seconds": rep.seconds}
-            trace.append((now(), z, bound))
+        repair()
         allowed_root = fixed_at(z, allowed0, exact=True)
         details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())
         details["root"]["incumbent"] = z
