@@ -14,7 +14,8 @@ seeds) and J=200 (``--seeds-200``). Per instance:
 
 Records go to ``exact_runs.jsonl`` as they finish (resumable: a record already there is not run
 again, so deleting one method's records re-runs only that method); ``--report`` writes
-``exact.md``, ``exact_summary.json`` and one gap-against-time PNG per size.
+``exact.md`` (keeping the notes below its ``NOTES_MARK`` line), ``exact_summary.json`` and one
+gap-against-time PNG per size.
 
     .venv/bin/python benchmarks/bench_exact.py [--time-limit 60] [--seeds-20 5] [--seeds-200 5]
     .venv/bin/python benchmarks/bench_exact.py --report
@@ -38,6 +39,8 @@ from l3gs_opt.solution import GAP_TOL  # noqa: E402
 from l3gs_opt.suites import split_method, suite_specs  # noqa: E402
 
 EXACT_METHODS = ["exact", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
+#: ``--report`` keeps everything in exact.md from this line on (notes written by hand).
+NOTES_MARK = "<!-- notes written by hand: kept by --report -->"
 HEURISTICS = ["rolling:bb", "rolling-future:bb", "mpc:3", "mpc:6", "progressive", "slope", "static"]
 
 
@@ -181,12 +184,13 @@ def report(args: argparse.Namespace) -> None:
     lines += ["", "## Where `exact` spends its time", "",
               "Seconds since the start at the end of each phase: `LP done` after the start heuristics, local "
               "search and the LP relaxation; `root done` after the LP neighbourhood MIP and the root column "
-              "generation; `LNS done` after the master neighbourhood (large instances: the band neighbourhood) "
-              "and the window LNS. Then the (chunk, slot) pairs before and after reduced-cost fixing, and how "
+              "generation; `primal done` after the master neighbourhood (large instances: the band "
+              "neighbourhood), the level-keeping repairs (small instances) and the window LNS, with the "
+              "incumbent branching starts from. Then the (chunk, slot) pairs before and after reduced-cost fixing, and how "
               "the HiGHS branch-and-cut on what is left ended (it runs to its time budget, a little short of the "
               "limit, unless it closes; restarts: stopped at a better schedule and started again on the model "
               "fixed there).", "",
-              "| instance | LP done (s) | root done (s) | CG iterations | LNS done (s) | incumbent after LNS "
+              "| instance | LP done (s) | root done (s) | CG iterations | primal done (s) | incumbent then "
               "| pairs allowed -> after fixing | reduced MIP | bound kind |", "|---|---|---|---|---|---|---|---|---|"]
     for iid, d in by_inst.items():
         r = d.get("exact")
@@ -194,7 +198,9 @@ def report(args: argparse.Namespace) -> None:
             continue
         det = r.get("details", {})
         root, tr = det.get("root", {}), det.get("trace", [])
-        lns_t = tr[2][0] if len(tr) > 2 else None
+        # Trace points: LP, root, then one per primal phase run (each repair, the window LNS).
+        n_primal = len(root.get("repair", [])) + ("after_lns" in root)
+        lns_t = tr[1 + n_primal][0] if n_primal and len(tr) > 1 + n_primal else None
         cg = "skipped" if root.get("colgen_skipped") else \
             f"{root.get('iterations')}{'' if root.get('converged') else ' (not converged)'}"
         red = det.get("reduced_mip", {})
@@ -204,7 +210,7 @@ def report(args: argparse.Namespace) -> None:
         pairs = "-" if left is None else f"{left + root.get('fixed_pairs', 0)} -> {left}"
         lines.append(f"| {iid} | {det.get('lp', {}).get('seconds', 0):.1f} | "
                      f"{root.get('seconds', 0):.1f} | {cg} | {'-' if lns_t is None else f'{lns_t:.1f}'} | "
-                     f"{root.get('after_lns', root.get('incumbent', float('nan'))):.7g} | {pairs} | "
+                     f"{root.get('incumbent', float('nan')):.7g} | {pairs} | "
                      f"{red.get('outcome', '-')}{restarts} | {det.get('bound_kind', '-')} |")
     lines += ["", "## Every multi-slot heuristic's gap at the paper's scale", "",
               "Gap to the best bound known (certified) and to the best objective known (in brackets).", "",
@@ -260,7 +266,11 @@ def report(args: argparse.Namespace) -> None:
         lines.append(f"![J={J}]({png.name})")
     lines += ["", "The generic MILPs report only their final (objective, bound); they are drawn as one point at "
               "their run time. `exact`'s trace starts when its LP relaxation (and the Lagrangian bound at its duals) is done.", ""]
-    (out / "exact.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    # Notes written by hand below NOTES_MARK survive the regeneration.
+    md = out / "exact.md"
+    old = md.read_text(encoding="utf-8") if md.exists() else ""
+    notes = old[old.index(NOTES_MARK):] if NOTES_MARK in old else ""
+    md.write_text("\n".join(lines) + "\n" + ("\n" + notes if notes else ""), encoding="utf-8")
     (out / "exact_summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n", encoding="utf-8")
 
 
