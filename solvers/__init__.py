@@ -5,8 +5,8 @@ Single slot (the paper's Lemma 3 MCKP): exact branch-and-bound (``bb``) and DP (
 rolling-horizon schedulers (``rolling:SOLVER``, ``rolling-future:SOLVER``, ``mpc:H``) and the
 order heuristics (``progressive``, ``slope``, ``static``), each reporting the LP relaxation as
 a certified bound. ``exact`` (Problems I/III) is branch-and-price on the GAP form: Lagrangian
-bounds with per-slot knapsacks, column generation, fixing and branching, certified gaps under a
-time limit. Brute force is the reference every one of them is tested against. Item instances
+bounds with per-slot knapsacks, column generation, fixing and branching (next to HiGHS on the
+reduced model), LNS and a CP-SAT repair on the primal side, certified gaps under a time limit. Brute force is the reference every one of them is tested against. Item instances
 (``l3gs-opt/items@1``: precedence DAG, replacement groups) have their own per-slot MCKP over
 precedence-closed item sets, rolling schedulers and brute force (:mod:`.items`).
 """
