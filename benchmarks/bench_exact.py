@@ -200,7 +200,7 @@ def report(args: argparse.Namespace) -> None:
         root, tr = det.get("root", {}), det.get("trace", [])
         # Trace points: LP, root, then one per primal phase run (each repair, the window LNS).
         n_primal = len(root.get("repair", [])) + ("after_lns" in root)
-        lns_t = tr[1 + n_primal][0] if n_primal and len(tr) > 1 + n_primal else None
+        primal_t = tr[1 + n_primal][0] if n_primal and len(tr) > 1 + n_primal else None
         cg = "skipped" if root.get("colgen_skipped") else \
             f"{root.get('iterations')}{'' if root.get('converged') else ' (not converged)'}"
         red = det.get("reduced_mip", {})
@@ -209,7 +209,7 @@ def report(args: argparse.Namespace) -> None:
         left = red.get("variables")
         pairs = "-" if left is None else f"{left + root.get('fixed_pairs', 0)} -> {left}"
         lines.append(f"| {iid} | {det.get('lp', {}).get('seconds', 0):.1f} | "
-                     f"{root.get('seconds', 0):.1f} | {cg} | {'-' if lns_t is None else f'{lns_t:.1f}'} | "
+                     f"{root.get('seconds', 0):.1f} | {cg} | {'-' if primal_t is None else f'{primal_t:.1f}'} | "
                      f"{root.get('incumbent', float('nan')):.7g} | {pairs} | "
                      f"{red.get('outcome', '-')}{restarts} | {det.get('bound_kind', '-')} |")
     lines += ["", "## Every multi-slot heuristic's gap at the paper's scale", "",

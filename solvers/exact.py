@@ -16,8 +16,9 @@
    :func:`.lns.lp_neighbourhood`); when column generation is skipped (large instances) a second
    LP neighbourhood in which those chunks may also shift by up to ``BAND_WIDTH`` slots; local
    search and a window LNS (:mod:`.lns`: a few slots re-solved exactly as a small MIP, the rest
-   fixed); then, on instances small enough for column generation, the level-keeping repair
-   (:mod:`.repair`: CP-SAT repacks the schedule so that one chunk gains and none loses).
+   fixed), with, on instances small enough for column generation, a level-keeping repair before
+   and after it (:mod:`.repair`: CP-SAT repacks the schedule so that one chunk gains and none
+   loses).
 4. **Closing the gap**: reduced-cost fixing with every Lagrangian certificate met (the LP duals'
    and the column generation's: a chunk whose forced arrival in slot t cannot beat the incumbent
    under the knapsack's LP bound is removed from t), then branching: ``branching="mip"`` -
@@ -83,9 +84,9 @@ BAND_WIDTH, BAND_SHARE = 2, 0.25
 #: The reduced MIP is stopped and restarted on a smaller model when HiGHS finds a schedule at
 #: which reduced-cost fixing keeps at most this share of the pairs it was given.
 RESTART_SHRINK = 0.9
-#: Time share (of the time left) of the level-keeping repair after the window LNS (:mod:`.repair`),
-#: on instances small enough for column generation: at J=200 (T60-J200-s1) 29 of its 30 CP-SAT
-#: runs ended undecided in 60 s.
+#: Time share (of the time left) of each level-keeping repair, before and after the window LNS
+#: (:mod:`.repair`), on instances small enough for column generation: at J=200 (T60-J200-s1) 29 of
+#: its 30 CP-SAT runs ended undecided in 60 s.
 REPAIR_SHARE = 0.15
 #: Time share (of the time left) for the exact-knapsack fixing test before each reduced MIP.
 EXACT_FIXING_SHARE = 0.05

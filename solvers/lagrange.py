@@ -41,7 +41,8 @@ from l3gs_opt.presolve import presolve
 from . import _mckp
 
 __all__ = ["GapData", "gap_data", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
-           "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible"]
+           "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
+           "chunk_profits"]
 
 _EPS = np.finfo(np.float64).eps
 
@@ -152,6 +153,14 @@ def gap_data(instance: Instance) -> GapData:
 
 
 # -- schedules in item form ---------------------------------------------------------------------
+
+def chunk_profits(data: GapData, assign: np.ndarray) -> np.ndarray:
+    """``P[i, assign[i]]`` per chunk (0 for a chunk that does not arrive)."""
+    on = assign >= 0
+    out = np.zeros(data.n)
+    out[on] = data.profit[np.nonzero(on)[0], assign[on]]
+    return out
+
 
 def assignment_value(data: GapData, assign: np.ndarray) -> float:
     """Objective of an assignment (held constant included), as an exactly rounded sum."""

@@ -19,7 +19,7 @@ import numpy as np
 
 from l3gs_opt.models.backends.highs import _interrupt_after  # HiGHS 1.14 overruns time_limit otherwise
 
-from .lagrange import GapData, assignment_feasible, assignment_value
+from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
 __all__ = ["MIP_BOUND_SLACK", "improve_window", "window_sweep", "reduced_mip", "lp_neighbourhood"]
 
@@ -39,7 +39,7 @@ def improve_window(data: GapData, assign: np.ndarray, allowed: np.ndarray, start
     W = np.arange(start, end)
     in_w = (assign >= start) & (assign < end)
     later = (assign >= end) | (assign < 0)
-    out_val = np.where(later & (assign >= 0), data.profit[np.arange(n), np.maximum(assign, 0)], 0.0)
+    out_val = np.where(later, chunk_profits(data, assign), 0.0)
     # Which (i, t in W) pairs get a variable.
     ok = allowed[:, start:end].copy()
     ok[~(in_w | later)] = False

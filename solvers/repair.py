@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lagrange import GapData, assignment_feasible, assignment_value
+from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
 __all__ = ["level_repair", "RepairResult", "REPAIR_WORKERS"]
 
@@ -46,11 +46,12 @@ class RepairResult:
     seconds: float
 
 
-def _profit_now(data: GapData, assign: np.ndarray) -> np.ndarray:
-    on = assign >= 0
-    out = np.zeros(data.n)
-    out[on] = data.profit[np.nonzero(on)[0], assign[on]]
-    return out
+def _must_arrive(cur: np.ndarray, target: int) -> np.ndarray:
+    """Chunks a level-keeping repair of ``target`` must schedule: leaving earns 0, so every chunk
+    earning more now, and the target unless it gains by leaving (its profit now is negative)."""
+    must = cur > 0
+    must[target] = cur[target] >= 0
+    return must
 
 
 def _keep_mask(allowed: np.ndarray, profit: np.ndarray, cur: np.ndarray, assign: np.ndarray) -> np.ndarray:
@@ -72,8 +73,7 @@ def _room_for(data: GapData, keep: np.ndarray, cur: np.ndarray, target: int, tar
     rows[target] = target_better
     has = rows.any(axis=1)
     last = np.where(has, data.T - 1 - np.argmax(rows[:, ::-1], axis=1), -1)
-    must = cur > 0
-    must[target] = cur[target] >= 0
+    must = _must_arrive(cur, target)
     for u in np.argsort(-data.item_l, kind="stable").tolist():   # upper layers first
         lo = int(data.lower[u])
         if must[u] and lo >= 0:
@@ -103,7 +103,7 @@ def level_repair(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, dead
 
     limit, pending, levels = per_target_s, None, None
     while True:
-        cur = _profit_now(data, best)
+        cur = chunk_profits(data, best)
         better = allowed & (data.profit > cur[:, None] + GAIN_TOL * scale)
         gain = np.where(better, data.profit - cur[:, None], 0.0).max(axis=1, initial=0.0)
         targets = np.nonzero(gain > 0)[0]
@@ -167,7 +167,7 @@ class _LevelModel:
             by_slot[t].append(k)
         for i in range(n):
             item_lits = [lits[k] for _, k in self.slots[i]]
-            if cur[i] > 0:
+            if cur[i] > 0:                            # (_must_arrive without a target)
                 model.add_exactly_one(item_lits)     # (empty: no schedule keeps i's level; never expected)
             elif len(item_lits) > 1:
                 model.add_at_most_one(item_lits)
@@ -199,7 +199,7 @@ class _LevelModel:
         gaining = [var(self.index[k]) for t, k in self.slots[target] if target_better[t]]
         model.add(cp_model.LinearExpr.sum([var(self.index[k]) for t, k in self.slots[target]
                                            if not target_better[t]]) == 0)
-        if self.cur[target] >= 0:          # leaving earns 0: not a gain
+        if _must_arrive(self.cur, target)[target]:
             if not gaining:
                 return "none", None
             model.add_exactly_one(gaining)

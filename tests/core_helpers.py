@@ -10,6 +10,8 @@ from l3gs_opt import Instance, Options
 
 ALL_OPTIONS = [Options(availability=a, same_slot_layers=s, budget=b)
                for a, s, b in itertools.product(("same_slot", "next_slot"), (True, False), ("per_slot", "cumulative"))]
+#: The options with a per-slot budget (what ``exact`` and the level-keeping repair accept).
+PER_SLOT_OPTIONS = [o for o in ALL_OPTIONS if o.budget == "per_slot"]
 
 
 def option_id(o: Options) -> str:

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from core_helpers import random_instance
+from core_helpers import PER_SLOT_OPTIONS, random_instance
 from l3gs_opt import Instance, Options, solve
 from l3gs_opt.errors import SolveError
 from l3gs_opt.evaluate import evaluate_objective, is_feasible
@@ -26,7 +26,7 @@ from l3gs_opt.solvers.lagrange import (Multipliers, assignment_feasible, assignm
 from l3gs_opt.solvers.lns import improve_window, lp_neighbourhood, reduced_mip
 
 #: Options ``exact`` accepts: both availabilities, same-slot and strict layers (per-slot budget).
-ACCEPTED = [Options(availability=a, same_slot_layers=s) for a in ("same_slot", "next_slot") for s in (True, False)]
+ACCEPTED = PER_SLOT_OPTIONS
 
 
 def rel_close(a: float, b: float, rtol: float = 1e-9) -> bool:

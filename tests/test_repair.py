@@ -3,26 +3,24 @@
 from __future__ import annotations
 
 import itertools as it
+import math
 import time
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from core_helpers import random_instance
-from l3gs_opt import Options
+from core_helpers import PER_SLOT_OPTIONS, random_instance
 from l3gs_opt.solvers.exact import round_schedule
-from l3gs_opt.solvers.lagrange import assignment_feasible, assignment_value, gap_data
-from l3gs_opt.solvers.repair import GAIN_TOL, _keep_mask, _profit_now, _room_for, level_repair
+from l3gs_opt.solvers.lagrange import assignment_feasible, assignment_value, chunk_profits, gap_data
+from l3gs_opt.solvers.repair import GAIN_TOL, _keep_mask, _room_for, level_repair
 
-ACCEPTED = [Options(availability=a, same_slot_layers=s) for a in ("same_slot", "next_slot") for s in (True, False)]
+ACCEPTED = PER_SLOT_OPTIONS
 
 
 def _profits(data, schedules: np.ndarray) -> np.ndarray:
     """Profit of each chunk in each schedule (0 when it does not arrive)."""
-    on = schedules >= 0
-    items = np.broadcast_to(np.arange(data.n), schedules.shape)
-    return np.where(on, data.profit[items, np.maximum(schedules, 0)], 0.0)
+    return np.array([chunk_profits(data, a) for a in schedules]).reshape(len(schedules), data.n)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -39,6 +37,8 @@ def test_repair_ends_where_no_schedule_dominates_it_chunk_by_chunk(seed: int, op
     assert assignment_feasible(data, rep.assign)
     assert assignment_value(data, rep.assign) >= assignment_value(data, start)
     assert rep.undecided == 0 and rep.tried >= rep.repairs
+    assert math.isclose(math.fsum(chunk_profits(data, rep.assign)) + data.constant,
+                        assignment_value(data, rep.assign), rel_tol=1e-12, abs_tol=1e-12)
     if data.n == 0:   # (presolve dropped every chunk)
         return
     schedules = np.array([a for a in it.product(range(-1, data.T), repeat=data.n)
@@ -61,7 +61,7 @@ def test_byte_count_rules_out_only_impossible_repairs(seed: int, opt: int, tight
     if data.n == 0:
         return
     start = round_schedule(data, rng.random((data.n, data.T)), data.allowed)
-    cur = _profit_now(data, start)
+    cur = chunk_profits(data, start)
     keep = _keep_mask(data.allowed, data.profit, cur, start)
     better = data.allowed & (data.profit > cur[:, None])
     schedules = np.array([a for a in it.product(range(-1, data.T), repeat=data.n)
