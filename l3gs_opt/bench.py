@@ -15,7 +15,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import multiprocessing as mp
 import os
@@ -25,23 +24,35 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-import numpy as np
 from tqdm import tqdm
 
 from .api import solve
 from .errors import L3gsError, SolveError
 from .evaluate import evaluate_objective, feasibility_violations
 from .instance import Instance
+from .jsonout import to_jsonable
+from .records import RecordLog, read_records
 from .solution import Solution, Status
 from .suites import InstanceSpec, split_method
 
-__all__ = ["RECORD_SCHEMA", "BenchTask", "run_bench", "read_records", "recheck", "run_task", "AGREE_TOL",
-           "CROSS_FLAGS"]
+__all__ = ["RECORD_SCHEMA", "BenchError", "BenchTask", "run_bench", "read_records", "recheck", "run_task",
+           "AGREE_TOL", "CROSS_FLAGS", "check_records"]
 
 RECORD_SCHEMA = "l3gs-opt/bench-record@1"
 #: Relative tolerance for two proven optima to count as equal and for a bound to count as valid:
 #: backends solve to zero gap; their round-off on objectives of 1e5-1e9 stays far below it.
 AGREE_TOL = 1e-7
+
+
+class BenchError(SolveError):
+    """A benchmark request or results file is unusable (an empty plan, a bad option, records of
+    another kind); names the field (an option such as ``--seeds``, or ``records``) and index."""
+
+    def __init__(self, field: str, message: str, index: int | None = None):
+        self.field = field
+        self.index = index
+        sep = " " if message.startswith("= ") else ": "   # "--seeds = -1: ...", as InstanceError
+        super().__init__(f"{field}{'' if index is None else f'[{index}]'}{sep}{message}")
 
 
 @dataclass(frozen=True)
@@ -122,23 +133,10 @@ def run_task(task: BenchTask, time_limit_s: float | None,
 
 
 def _jsonable(value: Any) -> Any:
-    """``value`` as strict JSON data: non-finite floats become None, other objects their ``str``.
-    (Text replacement of ``NaN``/``Infinity`` broke on ``-Infinity`` and on strings holding them.)"""
-    if isinstance(value, Mapping):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if value is None or isinstance(value, str):
-        return value
-    return str(value)
+    """A method's free-form ``details`` as strict JSON data (:func:`l3gs_opt.jsonout.to_jsonable`:
+    non-finite floats become None); an object of another type becomes its ``str`` rather than
+    costing the record."""
+    return to_jsonable(value, other=str, where="details")
 
 
 def _fork_worker(conn: Any, task: BenchTask, time_limit_s: float | None,
@@ -261,22 +259,28 @@ def _cross_check(record: dict[str, Any], state: _InstanceState) -> None:
         record["rel_error"] = None
 
 
-def read_records(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """Records of a JSONL file; a torn last line (a run killed mid-write) is ignored."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    out = []
-    lines = path.read_text(encoding="utf-8").splitlines()
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            if number != len(lines):
-                raise SolveError(f"{path}: line {number} is not a JSON record") from None
-    return out
+#: Keys every bench record has (what ``report`` and the cross-checks read without a default).
+RECORD_KEYS = ("record_id", "suite", "instance_id", "method", "status")
+
+
+def check_records(records: list[dict[str, Any]], *, field: str = "records") -> list[dict[str, Any]]:
+    """``records`` if each is a bench record (:data:`RECORD_SCHEMA`, or the keys of one).
+
+    Raises
+    ------
+    BenchError
+        A record of another kind (e.g. ``simulate``'s or ``experiments``' records): ``index`` is its
+        position (0-based).
+    """
+    for i, rec in enumerate(records):
+        missing = [k for k in RECORD_KEYS if not isinstance(rec.get(k), str)]
+        schema = rec.get("schema")
+        if missing or (schema is not None and schema != RECORD_SCHEMA):
+            what = f"schema {schema!r}" if schema is not None and schema != RECORD_SCHEMA else \
+                f"no text {', '.join(repr(k) for k in missing)}"
+            raise BenchError(field, f"not a bench record ({what}; expected {RECORD_SCHEMA} records from "
+                                    "l3gs-opt bench or compare)", i)
+    return records
 
 
 def _order(tasks: list[BenchTask]) -> list[BenchTask]:
@@ -295,28 +299,54 @@ def _order(tasks: list[BenchTask]) -> list[BenchTask]:
 
 def run_bench(tasks: Iterable[BenchTask], out_path: str | os.PathLike[str], *, time_limit_s: float | None = 60.0,
               jobs: int = 1, executor: str = "local", address: str | None = None, resume: bool = False,
-              progress: bool = True, custom: Mapping[str, Callable[..., Solution]] | None = None) -> Path:
+              progress: bool = True, custom: Mapping[str, Callable[..., Solution]] | None = None,
+              fresh: bool = False) -> Path:
     """Run every task and append its record to ``out_path`` (JSONL).
 
     ``jobs=0`` runs in this process (no kill enforcement; for debugging and custom methods).
 
+    The file is written through one :class:`l3gs_opt.records.RecordLog`: locked against a second
+    writer for the whole run, each record fsynced, a torn last line repaired before ``resume``
+    appends.
+
+    Parameters
+    ----------
+    fresh : bool
+        Drop the records already in ``out_path`` (under the lock) instead of refusing them.
+
     Raises
     ------
-    SolveError
-        The output exists without ``resume``; an unknown executor; bad ``jobs``.
+    BenchError
+        No tasks; the output holds records without ``resume`` (or records of another kind); an
+        unknown executor; bad ``jobs`` or time limit.
+    OutputLockedError
+        Another writer holds ``out_path``'s lock.
+    RecordFileError
+        ``out_path`` is a folder or its folder a file; a line other than the last is not a record.
     """
     out_path = Path(out_path)
+    tasks = list(tasks)
+    if not tasks:
+        raise BenchError("tasks", "nothing to run (an empty plan)")
     if executor not in ("local", "dask"):
-        raise SolveError(f"executor {executor!r} is not one of local, dask")
+        raise BenchError("executor", f"{executor!r} is not one of local, dask")
     if jobs < 0:
-        raise SolveError(f"jobs = {jobs}: must be >= 0")
+        raise BenchError("jobs", f"= {jobs}: must be >= 0")
     if time_limit_s is not None and not time_limit_s > 0:
-        raise SolveError(f"time limit {time_limit_s!r}: must be > 0 seconds")
-    existing = read_records(out_path)
-    if existing and not resume:
-        raise SolveError(f"{out_path} already holds {len(existing)} records: pass --resume to continue it, "
-                         "or choose another --out")
-    out_path.parent.mkdir(parents=True, exist_ok=True)
+        raise BenchError("time_limit_s", f"= {time_limit_s!r}: must be > 0 seconds")
+    with RecordLog(out_path, fresh=fresh, what="bench") as log:
+        existing = check_records(log.records(), field=str(out_path))
+        if existing and not resume:
+            raise BenchError("--resume", f"{out_path} already holds {len(existing)} records: pass --resume to "
+                                         "continue it, or choose another --out")
+        _run_logged(tasks, log, existing, time_limit_s=time_limit_s, jobs=jobs, executor=executor,
+                    address=address, progress=progress, custom=custom)
+    return out_path
+
+
+def _run_logged(tasks: list[BenchTask], log: RecordLog, existing: list[dict[str, Any]], *,
+                time_limit_s: float | None, jobs: int, executor: str, address: str | None, progress: bool,
+                custom: Mapping[str, Callable[..., Solution]] | None) -> None:
     states: dict[tuple[str, str], _InstanceState] = {}
     done = set()
     for rec in existing:
@@ -325,12 +355,10 @@ def run_bench(tasks: Iterable[BenchTask], out_path: str | os.PathLike[str], *, t
                                                                                     _InstanceState()))
     todo = _order([t for t in tasks if t.record_id not in done])
     bar = tqdm(total=len(todo), desc="bench", unit="record", disable=not progress)
-
-    with out_path.open("a", encoding="utf-8") as fh:
+    try:
         def write(rec: dict[str, Any]) -> None:
             _cross_check(rec, states.setdefault(_instance_key(rec), _InstanceState()))
-            fh.write(json.dumps(rec, allow_nan=False, default=str) + "\n")
-            fh.flush()
+            log.append(rec, where=rec.get("record_id", "record"))
             bar.update(1)
             bar.set_postfix_str(f"{rec['method']} {rec['status']}", refresh=False)
 
@@ -341,8 +369,8 @@ def run_bench(tasks: Iterable[BenchTask], out_path: str | os.PathLike[str], *, t
             _run_local(todo, time_limit_s, jobs, custom, write)
         else:
             _run_dask(todo, time_limit_s, jobs, address, write)
-    bar.close()
-    return out_path
+    finally:
+        bar.close()
 
 
 def _run_local(todo: list[BenchTask], time_limit_s: float | None, jobs: int,

@@ -26,7 +26,9 @@ def _cmd_solve(args: argparse.Namespace) -> int:
     solution = solve(instance, args.method, backend=args.backend, form=args.form, slot=args.slot,
                      time_limit_s=args.time_limit, presolve=not args.no_presolve)
     if args.json:
-        print(json.dumps(solution.to_dict(), allow_nan=False))
+        from .jsonout import dumps
+
+        print(dumps(solution.to_dict(), where="solution"))
     else:
         label = args.method + (f"/{solution.backend}" if solution.backend else "")
         print(comparison_table([(label, solution)]))
@@ -110,28 +112,50 @@ def _csv(text: str | None, kind: type = str) -> list | None:
 
 
 def _check_methods(methods: list[str] | None) -> None:
+    from .bench import BenchError
     from .errors import SolveError
     from .suites import available
 
+    if methods is not None and not methods:   # "--methods ," must not mean "every method"
+        raise BenchError("--methods", "names no method (expected comma-separated labels, e.g. ilp/highs,bb)")
     for m in methods or []:
         if not available(m):
             raise SolveError(f"method {m!r} is unknown (see l3gs-opt solve --help for method names)")
 
 
+def _check_bench_args(args: argparse.Namespace) -> list[int] | None:
+    """``--sizes`` (checked), after checking ``--seeds`` and that ``--out`` is no file."""
+    from .bench import BenchError
+
+    if args.sizes is not None:
+        if not args.sizes:
+            raise BenchError("--sizes", "names no size (expected comma-separated object counts, e.g. 10,20)")
+        for i, size in enumerate(args.sizes):
+            if size < 1:
+                raise BenchError("--sizes", f"= {size}: an object count must be >= 1", i)
+    if args.seeds is not None and args.seeds < 1:
+        raise BenchError("--seeds", f"= {args.seeds}: must be >= 1 seed per size")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise BenchError("--out", f"{args.out} is a file: expected a folder (for results.jsonl and report.md)")
+    return args.sizes
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from .bench import BenchTask, run_bench
+    from .bench import BenchError, BenchTask, run_bench
     from .report import write_report
     from .suites import SUITES, default_methods, suite_specs
 
     suites = list(SUITES) if args.suite == "all" else [args.suite]
     methods = _csv(args.methods)
     _check_methods(methods)
-    sizes = args.sizes
+    sizes = _check_bench_args(args)
     tasks = []
     for suite in suites:
         seeds = args.seeds if args.seeds is not None else (1 if args.quick else 3)
         for spec in suite_specs(suite, sizes=sizes, seeds=seeds, quick=args.quick):
             tasks += [BenchTask(spec, m) for m in (methods or default_methods(spec, quick=args.quick))]
+    if not tasks:
+        raise BenchError("--suite", f"{args.suite} with these options gives no records to run (an empty plan)")
     out = Path(args.out)
     time_limit = args.time_limit if args.time_limit is not None else (5.0 if args.quick else 60.0)
     records = run_bench(tasks, out / "results.jsonl", time_limit_s=time_limit, jobs=args.jobs,
@@ -166,10 +190,8 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     _check_methods(methods)
     out = Path(args.out)
     path = out / "compare.jsonl"
-    if path.exists():
-        path.unlink()
     run_bench([BenchTask(spec, m) for m in methods], path, time_limit_s=args.time_limit, jobs=1,
-              progress=not args.no_progress)
+              progress=not args.no_progress, fresh=True)
     rows = annotate(read_records(path))
     width = max(len(r["method"]) for r in rows)
     print(f"{'method'.ljust(width)}  status      objective     bound         rel. error  time (s)  flags")
@@ -196,7 +218,9 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         trace = read_bandwidth_trace(args.input)
         result = bandwidth_errors(trace.mbps, window=args.window, robust=args.robust, method=args.method)
     if args.json:
-        print(json.dumps(result))
+        from .jsonout import dumps
+
+        print(dumps(result, where="result"))   # NaN/inf errors as null (see l3gs_opt.jsonout)
     else:
         print("  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in result.items()))
     return 0

@@ -25,6 +25,9 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     from .experiments_report import write_report
 
     out = Path(args.out)
+    for option, folder in (("--out", args.out), ("--cache", args.cache)):
+        if folder and Path(folder).exists() and not Path(folder).is_dir():
+            raise ExperimentError(option, f"{folder} is a file: expected a folder")
     if args.report_only:
         if not (out / RUNS_FILE).exists():
             raise ExperimentError("--out", f"{out / RUNS_FILE}: no such results file (run without --report-only first)")

@@ -7,7 +7,6 @@ Wire into the main parser with ``register(subparsers)``. Bad input raises
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 __all__ = ["register"]
@@ -27,6 +26,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                        sh_upgrade_utility=args.sh_upgrade_utility)
     if args.resume and not args.out:
         raise SimulationError("resume", "needs --out (the folder of the interrupted run)")
+    for option, folder in (("--out", args.out), ("--cache-dir", args.cache_dir)):
+        if folder and Path(folder).exists() and not Path(folder).is_dir():
+            raise SimulationError(option, f"{folder} is a file: expected a folder")
     cache_dir = args.cache_dir
     if cache_dir is None and args.out and not args.no_cache:
         cache_dir = Path(args.out) / "reference-cache"
@@ -45,7 +47,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                      resume=args.resume)
     s = result.summary
     if args.json:
-        print(json.dumps(s, allow_nan=False))
+        from .jsonout import dumps
+
+        print(dumps(s, where="summary"))
         return 0
     label = s["method"] + (f" ({s['solver']})" if s["solver"] else "")
     t = s["timings_mean_s"]

@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from tqdm import tqdm
 from .api import solve
 from .instance_io import save_instance
 from .models.backends import installed_backends
+from .records import RecordLog
 from .report_table import comparison_table
 from .synth import synth_instance
 
@@ -102,14 +102,13 @@ def run_demo(out_dir: Path = Path("demo-out"), time_limit_s: float = 10.0, bench
     rows = []
     records = out_dir / "results.jsonl"
     started = time.perf_counter()
-    with records.open("w", encoding="utf-8") as fh:
+    with RecordLog(records, fresh=True, what="demo") as log:
         for method, backend, form, slot in tqdm(runs, desc="solving", unit="solve", leave=False):
             sol = solve(instance, method, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s)
             label = f"{method}/{backend}" + ("/gap" if form == "gap" else "") + (f"/slot{slot}" if slot is not None
                                                                                  else "")
             rows.append((label, sol))
-            fh.write(json.dumps({"label": label, **sol.to_dict()}, allow_nan=False) + "\n")
-            fh.flush()
+            log.append({"label": label, **sol.to_dict()}, where=label)
     table = comparison_table(rows)
     (out_dir / "results.md").write_text(f"# l3gs-opt demo\n\n{instance!r}\n\n```\n{table}\n```\n", encoding="utf-8")
     print(table)

@@ -64,6 +64,8 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from .errors import L3gsError
+from .jsonout import dumps
+from .records import RecordLog, append_record
 
 __all__ = ["ExperimentError", "SceneSpec", "PathSpec", "TraceSpec", "Task", "ExperimentPlan", "make_plan",
            "run_experiments", "default_traces", "trace_class", "scaled_mbps", "method_variant", "ABLATIONS",
@@ -766,11 +768,9 @@ def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: 
     return rec
 
 
-def _read_records(path: Path) -> list[dict]:
-    from .bench import read_records
-
+def _read_records(records: RecordLog) -> list[dict]:
     try:
-        return read_records(path)
+        return records.records()
     except L3gsError as exc:
         raise ExperimentError("runs", str(exc)) from None
 
@@ -806,32 +806,53 @@ def run_experiments(plan: ExperimentPlan, out_dir: str | os.PathLike[str], *, re
     ------
     ExperimentError
         ``runs.jsonl`` exists without ``resume``, or comes from a different plan.
+    OutputLockedError
+        Another run is writing to ``out_dir`` (each run holds ``runs.jsonl.lock`` to its end).
+    RecordFileError
+        ``out_dir`` is a file.
     """
+    out = Path(out_dir)
+    # One writer per folder, from reading what is done to the last record (and the session line).
+    records = RecordLog(out / RUNS_FILE, what="experiments")
+    try:
+        return _run_locked(plan, out, records, resume=resume, cache_dir=cache_dir, progress=progress,
+                           on_record=on_record, log=log)
+    finally:
+        records.close()
+
+
+def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: bool,
+                cache_dir: str | os.PathLike[str] | None, progress: bool,
+                on_record: Callable[[dict], None] | None, log: Callable[[str], None] | None) -> Path:
+    """:func:`run_experiments` once ``records`` (``OUT/runs.jsonl``, torn last line repaired) is locked."""
     from tqdm import tqdm
 
     from .simulate import Simulation, method_spec, trace_bytes
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    runs = out / RUNS_FILE
+    runs = records.path
     plan_path = out / "plan.json"
-    existing = _read_records(runs)
+    existing = _read_records(records)
     plan_dict = plan.to_dict()
     if existing and not resume:
         raise ExperimentError("--resume", f"{runs} already holds {len(existing)} records: pass --resume to "
                                           "continue it, or choose another --out")
+    for i, rec in enumerate(existing):
+        if not isinstance(rec.get("record_id"), str):
+            raise ExperimentError("runs", f"{runs}: record {i} has no record_id: not a record of l3gs-opt "
+                                          "experiments; choose another --out", i)
     if resume and existing and plan_path.exists():
-        old = json.loads(plan_path.read_text())
+        try:
+            old = json.loads(plan_path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ExperimentError("--resume", f"{plan_path} is not the JSON plan of a run ({exc}); use another "
+                                              "--out") from None
+        if not isinstance(old, dict):
+            raise ExperimentError("--resume", f"{plan_path} is not the JSON plan of a run; use another --out")
         diff = sorted(k for k in set(old) | set(plan_dict) if old.get(k) != plan_dict.get(k))
         if diff:
             raise ExperimentError("--resume", f"{out} was run with a different plan ({', '.join(diff)} differ); "
                                               "use the same options, or another --out")
-    plan_path.write_text(json.dumps(plan_dict, indent=1) + "\n")
-    if runs.exists():
-        text = runs.read_text(encoding="utf-8")
-        if text and not text.endswith("\n"):
-            # A torn last line (a run killed mid-write): drop it, so the next record starts a line.
-            runs.write_text(text[:text.rfind("\n") + 1], encoding="utf-8")
+    plan_path.write_text(dumps(plan_dict, indent=1, where="plan") + "\n")
     done = {r["record_id"] for r in existing}
     tasks = plan.tasks()
     todo = [t for t in tasks if t.record_id not in done]
@@ -849,61 +870,58 @@ def run_experiments(plan: ExperimentPlan, out_dir: str | os.PathLike[str], *, re
     truths: dict[tuple, tuple] = {}
     sims: dict[tuple, Any] = {}
     try:
-        with runs.open("a", encoding="utf-8") as fh:
-            for task in todo:
-                sc = prepared.get(task.scene)
-                if sc is None:
-                    sims.clear()   # one scene's bundles and renders at a time
-                    truths.clear()
-                    sc = prepared[task.scene] = _Scene(scenes[task.scene], plan, cache, say)
-                mbps = scaled_mbps(sc.scene_bytes())
-                tr = klass[task.trace]
-                bandwidth, info = trace_bytes(tr.path, mbps=mbps, start=task.start_s, slots=plan.window_s)
-                poses = sc.poses(paths[task.path], plan.window_s)
-                bundle = sc.bundle(task.variant)
-                tkey = (task.scene, task.variant, task.path)
-                if tkey not in truths:
-                    # The true utilities depend on the bundle and the viewer only (not on the window).
-                    oracle = Simulation(bundle, poses, bandwidth, config=plan.config("true_viewport"))
-                    truths[tkey] = (oracle, _truth(oracle, plan.window_s))
-                oracle, truth = truths[tkey]
-                base = {"record_id": task.record_id, "scene": task.scene, "variant": task.variant,
-                        "trace": task.trace, "trace_class": tr.klass, "start_s": task.start_s,
-                        "window_s": plan.window_s, "path": task.path, "path_source": paths[task.path].source,
-                        "mbps": mbps, "scale_factor": info["scale_factor"],
-                        "trace_mean_mbps_raw": info["trace_mean_mbps_raw"],
-                        "window_mean_mbps": info["window_mean_mbps"], "scene_bytes": sc.scene_bytes(),
-                        "bandwidth_cv": float(np.std(bandwidth) / max(float(np.mean(bandwidth)), 1e-12)),
-                        "width": plan.width, "height": plan.height}
-                meta = {"experiment": "ceiling", **{k: base[k] for k in ("scene", "variant", "trace", "start_s",
-                                                                         "path", "mbps")}}
-                inst = _ceiling_instance(oracle, truth, bandwidth, meta)
-                if task.kind == "ceiling":
-                    record = _ceiling_record(task, inst, base, plan.ceiling_time_limit_s, plan.ceiling_check_s)
-                else:
-                    sim = sims.get(task.group)
-                    if sim is None:
-                        sims.clear()   # groups run one after another: keep one simulation's caches
-                        # Reference renders are shared by content across simulations (sim_render's cache).
-                        sim = sims[task.group] = Simulation(bundle, poses, bandwidth,
-                                                            config=plan.config(task.ablation),
-                                                            reference=str(sc.teacher), info=info)
-                    result = sim.run(task.method)
-                    spec = method_spec(task.method, representation=bundle.manifest["representation"],
-                                       variant=task.variant)
-                    record = _sim_record(task, result, inst, base, preload=spec.preload)
-                fh.write(json.dumps(record, allow_nan=False) + "\n")
-                fh.flush()
-                written += 1
-                bar.update(1)
-                bar.set_postfix_str(f"{task.variant} {task.method or 'ceiling'} {task.ablation}", refresh=False)
-                if on_record is not None:
-                    on_record(record)
+        for task in todo:
+            sc = prepared.get(task.scene)
+            if sc is None:
+                sims.clear()   # one scene's bundles and renders at a time
+                truths.clear()
+                sc = prepared[task.scene] = _Scene(scenes[task.scene], plan, cache, say)
+            mbps = scaled_mbps(sc.scene_bytes())
+            tr = klass[task.trace]
+            bandwidth, info = trace_bytes(tr.path, mbps=mbps, start=task.start_s, slots=plan.window_s)
+            poses = sc.poses(paths[task.path], plan.window_s)
+            bundle = sc.bundle(task.variant)
+            tkey = (task.scene, task.variant, task.path)
+            if tkey not in truths:
+                # The true utilities depend on the bundle and the viewer only (not on the window).
+                oracle = Simulation(bundle, poses, bandwidth, config=plan.config("true_viewport"))
+                truths[tkey] = (oracle, _truth(oracle, plan.window_s))
+            oracle, truth = truths[tkey]
+            base = {"record_id": task.record_id, "scene": task.scene, "variant": task.variant,
+                    "trace": task.trace, "trace_class": tr.klass, "start_s": task.start_s,
+                    "window_s": plan.window_s, "path": task.path, "path_source": paths[task.path].source,
+                    "mbps": mbps, "scale_factor": info["scale_factor"],
+                    "trace_mean_mbps_raw": info["trace_mean_mbps_raw"],
+                    "window_mean_mbps": info["window_mean_mbps"], "scene_bytes": sc.scene_bytes(),
+                    "bandwidth_cv": float(np.std(bandwidth) / max(float(np.mean(bandwidth)), 1e-12)),
+                    "width": plan.width, "height": plan.height}
+            meta = {"experiment": "ceiling", **{k: base[k] for k in ("scene", "variant", "trace", "start_s",
+                                                                     "path", "mbps")}}
+            inst = _ceiling_instance(oracle, truth, bandwidth, meta)
+            if task.kind == "ceiling":
+                record = _ceiling_record(task, inst, base, plan.ceiling_time_limit_s, plan.ceiling_check_s)
+            else:
+                sim = sims.get(task.group)
+                if sim is None:
+                    sims.clear()   # groups run one after another: keep one simulation's caches
+                    # Reference renders are shared by content across simulations (sim_render's cache).
+                    sim = sims[task.group] = Simulation(bundle, poses, bandwidth,
+                                                        config=plan.config(task.ablation),
+                                                        reference=str(sc.teacher), info=info)
+                result = sim.run(task.method)
+                spec = method_spec(task.method, representation=bundle.manifest["representation"],
+                                   variant=task.variant)
+                record = _sim_record(task, result, inst, base, preload=spec.preload)
+            records.append(record, where=task.record_id)
+            written += 1
+            bar.update(1)
+            bar.set_postfix_str(f"{task.variant} {task.method or 'ceiling'} {task.ablation}", refresh=False)
+            if on_record is not None:
+                on_record(record)
     finally:
         bar.close()
         builds = {f"{name}/{v}": s for name, sc in prepared.items() for v, s in sc.build_s.items()}
         session.update(wall_s=time.perf_counter() - t_start, loadavg_end=list(os.getloadavg()),
                        records_written=written, build_s=builds)
-        with (out / "sessions.jsonl").open("a", encoding="utf-8") as fh:
-            fh.write(json.dumps(session) + "\n")
+        append_record(out / "sessions.jsonl", session)   # covered by the lock on runs.jsonl
     return runs

@@ -25,7 +25,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .bench import AGREE_TOL, read_records, recheck
+from .bench import AGREE_TOL, BenchError, check_records, read_records, recheck
 
 __all__ = ["ERROR_FLOOR", "annotate", "write_report", "summarise"]
 
@@ -233,10 +233,23 @@ def _recommend(stats: dict[str, dict[str, Any]]) -> list[str]:
 
 def write_report(records_path: str | os.PathLike[str] | Iterable[dict], out_dir: str | os.PathLike[str],
                  *, title: str = "l3gs-opt benchmark report") -> Path:
-    """Write ``report.md`` and PNG plots for the records; returns the report's path."""
+    """Write ``report.md`` and PNG plots for the records; returns the report's path.
+
+    Raises
+    ------
+    BenchError
+        A record is not a bench record (``records[i]``), or ``out_dir`` is a file.
+    RecordFileError
+        A line of the records file (other than a torn last one) is not a JSON record.
+    """
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise BenchError("--out", f"{out} is a file: expected a folder (for report.md and the plots)")
+    if isinstance(records_path, (str, os.PathLike)):
+        raw = check_records(read_records(records_path), field=str(records_path))
+    else:
+        raw = check_records(list(records_path))
     out.mkdir(parents=True, exist_ok=True)
-    raw = read_records(records_path) if isinstance(records_path, (str, os.PathLike)) else list(records_path)
     records = annotate(raw)
     summary = summarise(records)
     lines = [f"# {title}", "", f"{len(records)} records, {len({r['instance_id'] for r in records})} instances.", ""]

@@ -12,11 +12,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 
+from .records import OutputLock, RecordLog, prepare_path, read_records, repair_torn_tail, rewrite_records
 from .sim_config import SimulationError
 
 __all__ = ["run_id", "RecordWriter"]
+
+SLOTS_FILE, SUMMARY_FILE = "slots.jsonl", "summary.jsonl"
 
 
 def run_id(parts: dict) -> str:
@@ -25,17 +29,20 @@ def run_id(parts: dict) -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
-def _key(line: str) -> tuple | None:
-    """``(method, solver, client)`` of a record line; None for a blank or cut-off line (an interrupted write)."""
-    try:
-        obj = json.loads(line)
-    except json.JSONDecodeError:
-        return None
-    return (obj.get("method"), obj.get("solver"), obj.get("client")) if isinstance(obj, dict) else None
+def _key(record: dict) -> tuple:
+    """``(method, solver, client)`` of a record."""
+    return record.get("method"), record.get("solver"), record.get("client")
 
 
 class RecordWriter:
     """Slot records and the summary of one run, appended as they finish (an interrupted run loses nothing).
+
+    Both files are shared by the runs of every method in ``out_dir``; each run holds a lock of its
+    own key (``OUT/slots.jsonl.KEY.lock``) from construction to :meth:`summary` (or :meth:`close`),
+    so a second run of the same method into the same folder is refused while the first goes on.
+    Every change of a file (the rewrite below, each append) happens under that file's lock
+    (``OUT/slots.jsonl.lock``, held for the moment of the change), through
+    :mod:`l3gs_opt.records`: a torn last line is repaired first, a bad line elsewhere is an error.
 
     Parameters
     ----------
@@ -51,50 +58,76 @@ class RecordWriter:
     ------
     SimulationError
         ``resume`` when this key's recorded slots come from a run with other inputs.
+    OutputLockedError
+        Another run of this key is writing to ``out_dir``.
+    RecordFileError
+        A line of a record file (other than a torn last one) is not a JSON record.
     """
 
     def __init__(self, out_dir, method: str, solver: str | None, *, client: int | None = None, run: str = "",
                  resume: bool = False):
         self.dir = None if out_dir is None else Path(out_dir)
         self.resumed: list[dict] = []
+        self._owner: OutputLock | None = None
         if self.dir is None:
             return
-        self.dir.mkdir(parents=True, exist_ok=True)
         self.key = (method, solver, client)
-        slots = self.dir / "slots.jsonl"
-        mine = []
-        if slots.exists():
-            lines = slots.read_text().splitlines()
-            mine = [json.loads(line) for line in lines if _key(line) == self.key]
-            keep = [line for line in lines if _key(line) not in (self.key, None)]
-        else:
-            keep = []
-        if resume:
-            foreign = sorted({r.get("run_id") for r in mine} - {run})
-            if foreign:
-                raise SimulationError("resume", f"{slots} holds slots of method {method!r} (solver {solver!r}) from "
-                                                f"a run with other inputs (run id {foreign[0]}, this run {run}): run "
-                                                "without resume to start over")
-            by_slot = {r["slot"]: r for r in mine}
-            while len(self.resumed) in by_slot:
-                self.resumed.append(by_slot[len(self.resumed)])
-        # Rewrite: other keys' lines, then the slots kept, in order (drops cut-off lines and gaps).
-        slots.write_text("".join(line + "\n" for line in keep)
-                         + "".join(json.dumps(r, allow_nan=False) + "\n" for r in self.resumed))
-        summary = self.dir / "summary.jsonl"
-        if summary.exists():   # a re-run (or a resumed one) writes its summary again when it finishes
-            keep = [line for line in summary.read_text().splitlines() if _key(line) not in (self.key, None)]
-            summary.write_text("".join(line + "\n" for line in keep))
+        slots = self.dir / SLOTS_FILE
+        prepare_path(slots)
+        name = re.sub(r"[^A-Za-z0-9._-]+", "_", "-".join(str(k) for k in self.key))
+        self._owner = OutputLock(self.dir / f"{SLOTS_FILE}.{name}.lock", field=str(slots),
+                                 what=f"simulate of method {method!r}, solver {solver!r}"
+                                      + ("" if client is None else f", client {client}")).acquire()
+        try:
+            self._start(slots, run, resume)
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self, slots: Path, run: str, resume: bool) -> None:
+        method, solver, _ = self.key
+        with self._file_lock(SLOTS_FILE):
+            repair_torn_tail(slots)
+            records = read_records(slots)
+            mine = [r for r in records if _key(r) == self.key]
+            if resume:
+                foreign = sorted({r.get("run_id") for r in mine} - {run})
+                if foreign:
+                    raise SimulationError("resume", f"{slots} holds slots of method {method!r} (solver {solver!r}) "
+                                                    f"from a run with other inputs (run id {foreign[0]}, this run "
+                                                    f"{run}): run without resume to start over")
+                by_slot = {r["slot"]: r for r in mine}
+                while len(self.resumed) in by_slot:
+                    self.resumed.append(by_slot[len(self.resumed)])
+            # Rewrite: other keys' lines, then the slots kept, in order (drops gaps and later slots).
+            rewrite_records(slots, [r for r in records if _key(r) != self.key] + self.resumed)
+        summary = self.dir / SUMMARY_FILE
+        with self._file_lock(SUMMARY_FILE):
+            if summary.exists():   # a re-run (or a resumed one) writes its summary again when it finishes
+                repair_torn_tail(summary)
+                rewrite_records(summary, [r for r in read_records(summary) if _key(r) != self.key])
+
+    def _file_lock(self, name: str) -> OutputLock:
+        """The brief lock of one shared file (waits for another run's change to end)."""
+        return OutputLock(self.dir / f"{name}.lock", field=str(self.dir / name)).acquire(wait=True)
 
     def _append(self, name: str, obj: dict) -> None:
         if self.dir is None:
             return
-        with open(self.dir / name, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(obj, allow_nan=False) + "\n")
-            fh.flush()
+        with self._file_lock(name):
+            with RecordLog(self.dir / name, lock=False) as log:
+                log.append(obj, where=name)
 
     def slot(self, record: dict) -> None:
-        self._append("slots.jsonl", record)
+        self._append(SLOTS_FILE, record)
 
     def summary(self, summary: dict) -> None:
-        self._append("summary.jsonl", summary)
+        """Append the run's summary: its last record; the run's lock is released."""
+        self._append(SUMMARY_FILE, summary)
+        self.close()
+
+    def close(self) -> None:
+        """Release the run's lock (also when the process ends)."""
+        if self._owner is not None:
+            self._owner.release()
+            self._owner = None
