@@ -39,6 +39,11 @@ version), ``segmented``, ``sh_degree``, ``compact_sh_degree`` (distill, else nul
 ``bytes_per_splat`` (per SH form present), ``chunks`` (per chunk: ``object``, ``level``,
 ``sh_form``, ``sh_degree``, ``splats``, ``bytes``, ``file``, ``offset`` (bytes), ``fields``
 (``[name, dtype]`` pairs)), ``build`` (free-form provenance: teacher, sizes, timings).
+
+Reading checks the manifest before any chunk is read: strict JSON, every key's type and range
+(counts and offsets whole numbers >= 0, levels and objects that exist, the record fields of the
+chunk's SH form), and every chunk ``file`` a regular file *inside* the bundle folder (after
+resolving ``..`` and symbolic links) holding ``offset + bytes`` bytes.
 """
 
 from __future__ import annotations
@@ -51,7 +56,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .errors import L3gsError
-from .scene_io import SplatScene, bytes_per_splat
+from .input_files import check_regular_file, read_json
+from .scene_io import SceneError, SplatScene, bytes_per_splat, ply_property
 
 __all__ = ["BUNDLE_SCHEMA", "VARIANTS", "REPRESENTATION", "SH_FORMS", "BundleError", "Bundle",
            "effective_sh_degree", "record_fields", "write_bundle", "read_bundle", "split_layers"]
@@ -308,7 +314,12 @@ class Bundle:
         """The records of chunk ``index`` (structured array; fields as in the manifest)."""
         c = self.manifest["chunks"][index]
         dt = np.dtype([tuple(f) for f in c["fields"]])
-        raw = (self.path / c["file"]).read_bytes()[c["offset"]:c["offset"] + c["bytes"]]
+        path = check_regular_file(self.path / c["file"], lambda f, m: BundleError(f, m, index), field="chunks")
+        with open(path, "rb") as fh:
+            fh.seek(c["offset"])
+            raw = fh.read(c["bytes"])
+        if len(raw) != c["bytes"]:
+            raise BundleError("chunks", f"{c['file']}: shorter than offset + bytes", index)
         return np.frombuffer(raw, dtype=dt, count=c["splats"])
 
     def _find(self, obj: int, level: int, form: str) -> Optional[int]:
@@ -339,12 +350,23 @@ class Bundle:
             rec = self.chunk(gi)
             sh = _sh_from_records(rec, m["chunks"][gi]["sh_degree"])
             if m["variant"] == "distill" and sh_form == "full":
-                sh = _sh_from_records(self.chunk(self._find(j, level, "sh_upgrade")), m["sh_degree"])
+                ui = self._find(j, level, "sh_upgrade")
+                if ui is None or m["chunks"][ui]["splats"] != len(rec):
+                    raise BundleError("chunks", f"object {j}, level {level}: no sh_upgrade chunk of "
+                                                f"{len(rec)} splats beside the compact one", gi)
+                sh = _sh_from_records(self.chunk(ui), m["sh_degree"])
             col = lambda names: np.stack([rec[n] for n in names], 1)  # noqa: E731
-            parts.append(SplatScene(means=col(_GEOM), log_scales=col(("scale_0", "scale_1", "scale_2")),
-                                    quats=col(("rot_0", "rot_1", "rot_2", "rot_3")),
-                                    opacity_logits=np.array(rec["opacity"]), sh=sh,
-                                    object_ids=np.full(len(rec), j, np.int32) if m["segmented"] else None))
+            try:
+                parts.append(SplatScene(means=col(_GEOM), log_scales=col(("scale_0", "scale_1", "scale_2")),
+                                        quats=col(("rot_0", "rot_1", "rot_2", "rot_3")),
+                                        opacity_logits=np.array(rec["opacity"]), sh=sh,
+                                        object_ids=np.full(len(rec), j, np.int32) if m["segmented"] else None))
+            except SceneError as exc:  # a corrupt chunk: name it, its record and field
+                where = str(exc)
+                if exc.index:
+                    field, row = ply_property(exc.field, exc.index, sh.shape[1])
+                    where = f"record {row[0]}: {field}: {where.split(': ', 1)[1]}"
+                raise BundleError("chunks", f"{m['chunks'][gi]['file']}: {where}", gi) from None
         if not parts:
             raise BundleError("level", f"{level}: no chunks")
         return _concat(parts)
@@ -368,23 +390,26 @@ class Bundle:
         return np.array(self.chunk(i)["parent"])
 
 
+def _bundle_error(field: str, message: str) -> BundleError:
+    return BundleError(field, message)
+
+
+def _whole(value, minimum: int = 0) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= minimum
+
+
 def read_bundle(path) -> Bundle:
-    """Read and check a bundle's manifest (schema, keys, chunk sizes against the files).
+    """Read and check a bundle's manifest (schema, keys, types, chunk sizes against the files).
 
     Raises
     ------
     BundleError
-        On a missing manifest, wrong schema, unknown key, or a chunk whose ``bytes`` disagree
-        with ``splats x record size`` or with the file.
+        On a missing or non-regular manifest, strict-JSON faults, wrong schema, an unknown or
+        missing key, a value of the wrong type or range, a chunk whose ``bytes`` disagree with
+        ``splats x record size`` or with the file, or a chunk file outside the bundle folder.
     """
     root = Path(path)
-    mpath = root / "manifest.json"
-    if not mpath.is_file():
-        raise BundleError("manifest", f"{mpath}: no such file")
-    try:
-        m = json.loads(mpath.read_text())
-    except json.JSONDecodeError as exc:
-        raise BundleError("manifest", f"{mpath}: not valid JSON ({exc})") from None
+    m = read_json(root / "manifest.json", _bundle_error, field="manifest")
     if not isinstance(m, dict) or m.get("schema") != BUNDLE_SCHEMA:
         raise BundleError("schema", f"{m.get('schema') if isinstance(m, dict) else m!r} must be {BUNDLE_SCHEMA!r}")
     unknown = sorted(set(m) - _MANIFEST_KEYS)
@@ -393,16 +418,65 @@ def read_bundle(path) -> Bundle:
     missing = sorted(_MANIFEST_KEYS - set(m))
     if missing:
         raise BundleError(missing[0], "missing manifest key")
-    if m["variant"] not in VARIANTS:
-        raise BundleError("variant", f"{m['variant']!r} must be one of {', '.join(VARIANTS)}")
+    _check_manifest_values(m)
+    inside = root.resolve()
+    hierarchy = m["variant"] == "hierarchy"
+    forms = ("compact", "sh_upgrade") if m["variant"] == "distill" else ("full",)
     for i, c in enumerate(m["chunks"]):
+        if not isinstance(c, dict):
+            raise BundleError("chunks", f"{c!r} must be an object", i)
         bad = sorted(set(c) ^ _CHUNK_KEYS)
         if bad:
             raise BundleError("chunks", f"key {bad[0]!r} unknown or missing", i)
-        size = np.dtype([tuple(f) for f in c["fields"]]).itemsize
+        for key in ("splats", "bytes", "offset", "object", "level", "sh_degree"):
+            if not _whole(c[key]):
+                raise BundleError("chunks", f"{key} {c[key]!r} must be a whole number >= 0", i)
+        if c["object"] not in m["objects"]:
+            raise BundleError("chunks", f"object {c['object']!r} is not in 'objects'", i)
+        if c["level"] >= len(m["levels"]):
+            raise BundleError("chunks", f"level {c['level']} must be below {len(m['levels'])} (the levels)", i)
+        if c["sh_form"] not in forms or c["sh_degree"] > 3:
+            raise BundleError("chunks", f"sh_form {c['sh_form']!r} / sh_degree {c['sh_degree']!r}: must be one of "
+                                        f"{', '.join(forms)} (variant {m['variant']!r}) and 0..3", i)
+        expected = [list(f) for f in record_fields(c["sh_form"], c["sh_degree"], parent=hierarchy)]
+        if c["fields"] != expected:
+            raise BundleError("chunks", f"fields must be the {c['sh_form']} records of SH degree {c['sh_degree']} "
+                                        f"(see record_fields)", i)
+        size = np.dtype([tuple(f) for f in expected]).itemsize
         if c["bytes"] != c["splats"] * size:
             raise BundleError("chunks", f"bytes {c['bytes']} != splats {c['splats']} x {size}", i)
-        f = root / c["file"]
-        if not f.is_file() or f.stat().st_size < c["offset"] + c["bytes"]:
+        if not isinstance(c["file"], str) or not c["file"]:
+            raise BundleError("chunks", f"file {c['file']!r} must be a path inside the bundle", i)
+        f = (root / c["file"]).resolve()
+        if not f.is_relative_to(inside):
+            raise BundleError("chunks", f"file {c['file']!r} resolves to {f}, outside the bundle folder {inside}", i)
+        f = check_regular_file(f, lambda field, message: BundleError(field, message, i), field="chunks")
+        if f.stat().st_size < c["offset"] + c["bytes"]:
             raise BundleError("chunks", f"{c['file']}: missing or shorter than offset + bytes", i)
     return Bundle(path=root, manifest=m)
+
+
+def _check_manifest_values(m: dict) -> None:
+    """Types and ranges of the manifest's top-level values (the chunks are checked by the caller)."""
+    if m["variant"] not in VARIANTS:
+        raise BundleError("variant", f"{m['variant']!r} must be one of {', '.join(VARIANTS)}")
+    if m["representation"] != REPRESENTATION[m["variant"]]:
+        raise BundleError("representation", f"{m['representation']!r} must be "
+                                            f"{REPRESENTATION[m['variant']]!r} for variant {m['variant']!r}")
+    if not isinstance(m["segmented"], bool):
+        raise BundleError("segmented", f"{m['segmented']!r} must be true or false")
+    if not (_whole(m["sh_degree"]) and m["sh_degree"] <= 3):
+        raise BundleError("sh_degree", f"{m['sh_degree']!r} must be 0..3")
+    for key in ("levels", "objects", "chunks"):
+        if not isinstance(m[key], list) or (key != "chunks" and not m[key]):
+            raise BundleError(key, f"must be a{' non-empty' if key != 'chunks' else ''} list")
+    for i, lv in enumerate(m["levels"]):
+        if not isinstance(lv, dict):
+            raise BundleError("levels", f"{lv!r} must be an object", i)
+    for i, obj in enumerate(m["objects"]):
+        if not _whole(obj):
+            raise BundleError("objects", f"{obj!r} must be a whole number >= 0", i)
+    if len(set(m["objects"])) != len(m["objects"]):
+        raise BundleError("objects", "ids must be distinct")
+    if not isinstance(m["build"], dict):
+        raise BundleError("build", f"{type(m['build']).__name__} must be an object")

@@ -15,24 +15,41 @@ Formats read and written here:
   PINHOLE and SIMPLE_PINHOLE cameras (undistorted, as 3DGS requires).
 * **NeRF / Blender ``transforms.json``**: OpenGL camera-to-world matrices (x right, y up,
   z backward), converted to OpenCV world-to-camera.
+
+Every file is read through :mod:`l3gs_opt.input_files` (regular files only, sizes limited, strict
+JSON). A camera is refused by name before any image is allocated when its size exceeds
+:data:`MAX_IMAGE_SIDE` pixels a side or :data:`MAX_IMAGE_PIXELS` in all, its focal length
+:data:`MAX_FOCAL_PX`, or a background channel leaves [0, 1].
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import math
+import numbers
 import struct
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
 from .errors import L3gsError
+from .input_files import check_regular_file, read_json, read_text
+from .traces import iter_lines
 
-__all__ = ["CameraError", "Camera", "load_cameras", "load_camera", "save_cameras",
+__all__ = ["CameraError", "Camera", "load_cameras", "load_camera", "load_any_cameras", "save_cameras",
            "camera_to_dict", "camera_from_dict", "read_colmap", "write_colmap",
-           "read_blender", "write_blender", "look_at"]
+           "read_blender", "write_blender", "look_at", "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX"]
+
+#: Longest image side (pixels). Renders are allocated per pixel; 16k covers every real sensor.
+MAX_IMAGE_SIDE = 16384
+#: Most pixels of one image (2^25, about 8K UHD): a float32 RGB render of it takes 400 MB already.
+MAX_IMAGE_PIXELS = 2**25
+#: Largest focal length (pixels): a 0.0001 degree field of view at 16k pixels. Larger ones overflow
+#: the renderer's float32 screen-space covariances (fx^2 Sigma / z^2) and training turns them into NaN.
+MAX_FOCAL_PX = 1e9
 
 #: Tolerance on ``R R^T = I`` for the rotation block of ``world_to_camera`` (file formats store
 #: rotations in float32 or as rounded decimals; a true scale or shear is far larger).
@@ -43,6 +60,21 @@ _JSON_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "world_to_camera", "bac
 
 class CameraError(L3gsError, ValueError):
     """A camera or camera file is malformed; the message names the field (and camera index)."""
+
+
+def _camera_error(field: str, message: str) -> CameraError:
+    return CameraError(f"{field}: {message}")
+
+
+def _whole_number(v: Any) -> Optional[int]:
+    """``v`` as an int if it is an integer or an integral finite float (not a bool), else None."""
+    if isinstance(v, bool):
+        return None
+    if isinstance(v, numbers.Integral):
+        return int(v)
+    if isinstance(v, numbers.Real) and math.isfinite(v) and float(v).is_integer():
+        return int(v)
+    return None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -68,7 +100,9 @@ class Camera:
     Raises
     ------
     CameraError
-        On a non-positive size or focal length, a non-finite value, or a matrix that is not rigid.
+        On a non-positive or too large size (:data:`MAX_IMAGE_SIDE`, :data:`MAX_IMAGE_PIXELS`), a
+        non-positive or too large focal length (:data:`MAX_FOCAL_PX`), a non-finite value, a
+        matrix that is not rigid, or a background channel outside [0, 1].
     """
 
     width: int
@@ -84,21 +118,29 @@ class Camera:
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         for key in ("width", "height"):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not float(v).is_integer() or int(v) <= 0:
-                raise CameraError(f"{key}: {v!r} must be a positive integer")
-            set_(key, int(v))
+            v = _whole_number(getattr(self, key))
+            if v is None:
+                raise CameraError(f"{key}: {getattr(self, key)!r} must be a positive integer")
+            if not 0 < v <= MAX_IMAGE_SIDE:
+                raise CameraError(f"{key}: {v} must be a positive integer <= {MAX_IMAGE_SIDE} (MAX_IMAGE_SIDE)")
+            set_(key, v)
+        if self.width * self.height > MAX_IMAGE_PIXELS:
+            raise CameraError(f"width: {self.width} x {self.height} = {self.width * self.height:,} pixels, more than "
+                              f"{MAX_IMAGE_PIXELS:,} (MAX_IMAGE_PIXELS)")
         for key in ("fx", "fy", "cx", "cy"):
             try:
                 v = float(getattr(self, key))
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise CameraError(f"{key}: {getattr(self, key)!r} is not a number") from None
             if not math.isfinite(v):
                 raise CameraError(f"{key}: {v} is not finite")
-            if key in ("fx", "fy") and v <= 0:
-                raise CameraError(f"{key}: {v} must be > 0")
+            if key in ("fx", "fy") and not 0 < v <= MAX_FOCAL_PX:
+                raise CameraError(f"{key}: {v} must be > 0 and <= {MAX_FOCAL_PX:g} pixels (MAX_FOCAL_PX)")
             set_(key, v)
-        m = np.array(self.world_to_camera, dtype=np.float64)
+        try:
+            m = np.array(self.world_to_camera, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise CameraError("world_to_camera: must be a 4x4 matrix of numbers") from None
         if m.shape != (4, 4):
             raise CameraError(f"world_to_camera: shape {m.shape} must be [4, 4]")
         if not np.all(np.isfinite(m)):
@@ -113,9 +155,16 @@ class Camera:
                               f"(|R R^T - I| = {err:.2e}, det = {np.linalg.det(r):.4f})")
         m.setflags(write=False)
         set_("world_to_camera", m)
-        bg = np.array(self.background, dtype=np.float64)
-        if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-            raise CameraError(f"background: {bg.tolist()} must be 3 finite numbers")
+        try:
+            bg = np.array(self.background, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise CameraError(f"background: {self.background!r} must be 3 numbers in [0, 1]") from None
+        if bg.shape != (3,):
+            raise CameraError(f"background: {bg.tolist()} must be 3 numbers in [0, 1]")
+        bad = ~((bg >= 0) & (bg <= 1))
+        if bad.any():
+            c = int(np.argmax(bad))
+            raise CameraError(f"background[{c}]: {bg[c]} must be in [0, 1] (r, g, b)")
         bg.setflags(write=False)
         set_("background", bg)
         set_("name", str(self.name))
@@ -204,8 +253,24 @@ def camera_from_dict(d: dict, *, where: str = "camera") -> Camera:
         return Camera(**{k: d[k] for k in d})
     except CameraError as exc:
         raise CameraError(f"{where}.{exc}") from None
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise CameraError(f"{where}: {exc}") from None
+
+
+#: Largest camera JSON or ``transforms.json`` read (bytes): ~100,000 cameras.
+MAX_CAMERA_FILE_BYTES = 64 * 2**20
+
+
+def _read_camera_json(path: Path) -> Any:
+    return read_json(path, _camera_error, field="cameras", max_bytes=MAX_CAMERA_FILE_BYTES)
+
+
+def _cameras_from_json(obj: Any, path: Path) -> list[Camera]:
+    if isinstance(obj, dict):
+        return [camera_from_dict(obj, where=f"{path.name}")]
+    if isinstance(obj, list) and obj:
+        return [camera_from_dict(o, where=f"{path.name}[{i}]") for i, o in enumerate(obj)]
+    raise CameraError(f"{path}: expected a camera object or a non-empty list of them")
 
 
 def load_cameras(path) -> list[Camera]:
@@ -214,20 +279,23 @@ def load_cameras(path) -> list[Camera]:
     Raises
     ------
     CameraError
-        If the file is missing, not JSON, or any camera is malformed (the message gives its index).
+        If the file is missing, not a regular file, too large, not strict JSON, or any camera is
+        malformed (the message gives its index).
     """
     path = Path(path)
-    if not path.is_file():
-        raise CameraError(f"{path}: no such file")
-    try:
-        obj = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CameraError(f"{path}: not valid JSON ({exc})") from None
-    if isinstance(obj, dict):
-        return [camera_from_dict(obj, where=f"{path.name}")]
-    if isinstance(obj, list) and obj:
-        return [camera_from_dict(o, where=f"{path.name}[{i}]") for i, o in enumerate(obj)]
-    raise CameraError(f"{path}: expected a camera object or a non-empty list of them")
+    return _cameras_from_json(_read_camera_json(path), path)
+
+
+def load_any_cameras(path) -> list[Camera]:
+    """Cameras from a camera JSON, a ``transforms.json`` (an object with ``frames``) or a COLMAP
+    model folder; the file is read once."""
+    path = Path(path)
+    if path.is_dir():
+        return read_colmap(path)
+    obj = _read_camera_json(path)
+    if isinstance(obj, dict) and "frames" in obj:
+        return _blender_from_json(obj, path)
+    return _cameras_from_json(obj, path)
 
 
 def load_camera(path, index: int = 0) -> Camera:
@@ -257,7 +325,9 @@ _COLMAP_IDS = {name: (mid, n) for mid, (name, n) in _COLMAP_MODELS.items()}
 
 
 def _qvec_to_rotmat(q) -> np.ndarray:
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    q = np.asarray(q, np.float64)
+    q = q / np.abs(q).max()  # first to [-1, 1]: the norm of a huge quaternion must not overflow
+    w, x, y, z = q / np.linalg.norm(q)
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
@@ -295,7 +365,7 @@ def _intrinsics(model: str, params, where: str) -> tuple[float, float, float, fl
 
 def _read_colmap_text(folder: Path):
     cams = {}
-    for ln, line in enumerate((folder / "cameras.txt").read_text().splitlines(), 1):
+    for ln, line in iter_lines(read_text(folder / "cameras.txt", _camera_error, field="cameras.txt")):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -312,11 +382,12 @@ def _read_colmap_text(folder: Path):
             raise CameraError(f"{where}: {model} takes {_COLMAP_IDS[model][1]} parameters, got {len(params)}")
         cams[cid] = (model, w, h, params, where)
     images = []
-    lines = (folder / "images.txt").read_text().splitlines()
-    ln = 0
-    while ln < len(lines):
-        line = lines[ln].strip()
-        ln += 1
+    points_line = False  # every image line is followed by its POINTS2D line
+    for ln, line in iter_lines(read_text(folder / "images.txt", _camera_error, field="images.txt")):
+        line = line.strip()
+        if points_line:
+            points_line = False
+            continue
         if not line or line.startswith("#"):
             continue
         tok = line.split()
@@ -328,7 +399,7 @@ def _read_colmap_text(folder: Path):
         except (IndexError, ValueError):
             raise CameraError(f"{where}: cannot parse {line!r}") from None
         images.append((name, q, t, cid, where))
-        ln += 1  # the POINTS2D line that follows every image line
+        points_line = True
     return cams, images
 
 
@@ -340,8 +411,13 @@ def _read_colmap_binary(folder: Path):
             raise CameraError(f"{where}: file truncated")
         return struct.unpack(fmt, buf)
 
+    def opened(name: str):
+        path = check_regular_file(folder / name, _camera_error, field=name)
+        return open(path, "rb"), path.stat().st_size
+
     cams = {}
-    with open(folder / "cameras.bin", "rb") as f:
+    f, _ = opened("cameras.bin")
+    with f:
         (num,) = unpack(f, "<Q", "cameras.bin")
         for k in range(num):
             where = f"cameras.bin camera {k}"
@@ -354,7 +430,8 @@ def _read_colmap_binary(folder: Path):
         if f.read(1):
             raise CameraError("cameras.bin: trailing bytes after the last camera")
     images = []
-    with open(folder / "images.bin", "rb") as f:
+    f, size = opened("images.bin")
+    with f:
         (num,) = unpack(f, "<Q", "images.bin")
         for k in range(num):
             where = f"images.bin image {k}"
@@ -368,9 +445,9 @@ def _read_colmap_binary(folder: Path):
                     break
                 name += c
             (npts,) = unpack(f, "<Q", where)
-            skip = 24 * npts
-            if len(f.read(skip)) != skip:
-                raise CameraError(f"{where}: file truncated in the 2D points")
+            if 24 * npts > size - f.tell():  # skipped, never read: the count may be absurd
+                raise CameraError(f"{where}: file truncated in the 2D points ({npts:,} claimed)")
+            f.seek(24 * npts, io.SEEK_CUR)
             images.append((name.decode("utf-8", "replace"), list(vals[1:5]), list(vals[5:8]), vals[8], where))
         if f.read(1):
             raise CameraError("images.bin: trailing bytes after the last image")
@@ -400,9 +477,9 @@ def read_colmap(folder, *, background=(0.0, 0.0, 0.0)) -> list[Camera]:
         Missing or malformed files, an unknown camera id, a distorted camera model.
     """
     folder = Path(folder)
-    if (folder / "cameras.txt").is_file() and (folder / "images.txt").is_file():
+    if (folder / "cameras.txt").exists() and (folder / "images.txt").exists():
         cams, images = _read_colmap_text(folder)
-    elif (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
+    elif (folder / "cameras.bin").exists() and (folder / "images.bin").exists():
         cams, images = _read_colmap_binary(folder)
     else:
         raise CameraError(f"{folder}: no COLMAP model (cameras.txt + images.txt or cameras.bin + images.bin)")
@@ -412,7 +489,7 @@ def read_colmap(folder, *, background=(0.0, 0.0, 0.0)) -> list[Camera]:
             raise CameraError(f"{where}: camera id {cid} is not in the cameras file")
         model, w, h, params, cwhere = cams[cid]
         fx, fy, cx, cy = _intrinsics(model, params, cwhere)
-        if not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
+        if not np.all(np.isfinite(q)) or not np.any(q):
             raise CameraError(f"{where}: quaternion {q} must be finite and non-zero")
         m = np.eye(4)
         m[:3, :3] = _qvec_to_rotmat(q)
@@ -481,43 +558,68 @@ def read_blender(path, *, width: Optional[int] = None, height: Optional[int] = N
         Missing file or keys, unknown size, a matrix that is not 4x4 and rigid.
     """
     path = Path(path)
-    if not path.is_file():
-        raise CameraError(f"{path}: no such file")
+    return _blender_from_json(_read_camera_json(path), path, width=width, height=height, background=background)
+
+
+def _blender_number(obj: dict, key: str, where: str, default: Optional[float] = None) -> float:
+    v = obj.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise CameraError(f"{where}.{key}: {v!r} must be a number")
     try:
-        obj = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CameraError(f"{path}: not valid JSON ({exc})") from None
+        v = float(v)
+    except OverflowError:
+        v = math.inf
+    if not math.isfinite(v):
+        raise CameraError(f"{where}.{key}: {v!r} must be finite")
+    return v
+
+
+def _blender_from_json(obj: Any, path: Path, *, width: Optional[int] = None, height: Optional[int] = None,
+                       background=(0.0, 0.0, 0.0)) -> list[Camera]:
     if not isinstance(obj, dict) or not isinstance(obj.get("frames"), list):
         raise CameraError(f"{path}: expected an object with a 'frames' list")
-    w = obj.get("w", width)
-    h = obj.get("h", height)
+    where = path.name
+    w, h = obj.get("w", width), obj.get("h", height)
     if w is None or h is None:
         raise CameraError(f"{path}: image size unknown (no 'w'/'h' in the file; pass width= and height=)")
-    w, h = int(w), int(h)
+    for key, v in (("w", w), ("h", h)):
+        if _whole_number(v) is None or not 0 < _whole_number(v) <= MAX_IMAGE_SIDE:
+            raise CameraError(f"{where}.{key}: {v!r} must be a positive integer <= {MAX_IMAGE_SIDE} (MAX_IMAGE_SIDE)")
+    w, h = _whole_number(w), _whole_number(h)
     if "fl_x" in obj:
-        fx = float(obj["fl_x"])
-        fy = float(obj.get("fl_y", fx))
+        fx = _blender_number(obj, "fl_x", where)
+        fy = _blender_number(obj, "fl_y", where, fx)
     elif "camera_angle_x" in obj:
-        fx = 0.5 * w / math.tan(0.5 * float(obj["camera_angle_x"]))
-        fy = 0.5 * h / math.tan(0.5 * float(obj["camera_angle_y"])) if "camera_angle_y" in obj else fx
+        angles = {}
+        for key in ("camera_angle_x", "camera_angle_y"):
+            if key in obj:
+                angles[key] = _blender_number(obj, key, where)
+                if not 0 < angles[key] < math.pi:
+                    raise CameraError(f"{where}.{key}: {angles[key]!r} must be in (0, pi) radians")
+        fx = 0.5 * w / math.tan(0.5 * angles["camera_angle_x"])
+        fy = 0.5 * h / math.tan(0.5 * angles["camera_angle_y"]) if "camera_angle_y" in angles else fx
     else:
         raise CameraError(f"{path}: neither 'fl_x' nor 'camera_angle_x' given")
-    cx = float(obj.get("cx", w / 2.0))
-    cy = float(obj.get("cy", h / 2.0))
+    cx = _blender_number(obj, "cx", where, w / 2.0)
+    cy = _blender_number(obj, "cy", where, h / 2.0)
     flip = np.diag([1.0, -1.0, -1.0, 1.0])
     out = []
     for i, fr in enumerate(obj["frames"]):
         where = f"{path.name}: frames[{i}]"
         if not isinstance(fr, dict) or "transform_matrix" not in fr:
             raise CameraError(f"{where}: missing 'transform_matrix'")
-        c2w = np.array(fr["transform_matrix"], dtype=np.float64)
+        try:
+            c2w = np.array(fr["transform_matrix"], dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            c2w = np.zeros(0)
         if c2w.shape != (4, 4) or not np.all(np.isfinite(c2w)):
             raise CameraError(f"{where}.transform_matrix: must be a finite 4x4 matrix")
         c2w = c2w @ flip
         r, t = c2w[:3, :3], c2w[:3, 3]
         w2c = np.eye(4)
         w2c[:3, :3] = r.T
-        w2c[:3, 3] = -r.T @ t
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused by Camera, by name
+            w2c[:3, 3] = -r.T @ t
         try:
             out.append(Camera(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy, world_to_camera=w2c,
                               background=background, name=str(fr.get("file_path", f"{i:05d}"))))

@@ -23,21 +23,11 @@ class OutputError(L3gsError, ValueError):
 
 
 def load_any_cameras(path) -> list:
-    """Cameras from a camera JSON, a ``transforms.json`` (has ``frames``) or a COLMAP model folder."""
-    from .cameras import load_cameras, read_blender, read_colmap
+    """Cameras from a camera JSON, a ``transforms.json`` (has ``frames``) or a COLMAP model folder
+    (:func:`l3gs_opt.cameras.load_any_cameras`)."""
+    from .cameras import load_any_cameras as load
 
-    path = Path(path)
-    if path.is_dir():
-        return read_colmap(path)
-    if not path.is_file():
-        raise CameraError(f"{path}: no such file or folder")
-    try:
-        obj = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CameraError(f"{path}: not valid JSON ({exc})") from None
-    if isinstance(obj, dict) and "frames" in obj:
-        return read_blender(path)
-    return load_cameras(path)
+    return load(path)
 
 
 def save_image(image, path) -> Path:

@@ -8,7 +8,12 @@ positions in metres (y up), rotations as Euler angles in degrees; timestamps hav
 resolution with many lines per second, so sub-second times are inferred by spreading each second's
 lines evenly over it (line k of n in second s is at ``s + k / n``). Leading lines whose head
 position and rotation are all zero (the headset not yet tracking) are dropped. Lines that do not
-parse are skipped with one warning that counts them.
+parse are skipped with one warning that counts them (given only when the log is read; a log that
+is refused gives its error alone).
+
+Non-physical poses are refused by name (line and field), never rendered: a head position
+coordinate beyond :data:`MAX_POSITION_M` metres or an angle beyond :data:`MAX_ANGLE_DEG` degrees
+(a camera 10^308 m away sees nothing, and its empty picture would score like a perfect one).
 """
 
 from __future__ import annotations
@@ -20,13 +25,24 @@ import warnings
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from .errors import L3gsError
+from .input_files import read_text
+from .traces import iter_lines
 
 __all__ = ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
-           "write_camera_path", "synthetic_poses", "euler_to_matrix"]
+           "write_camera_path", "synthetic_poses", "euler_to_matrix", "MAX_POSITION_M", "MAX_ANGLE_DEG",
+           "MAX_POSE_FILE_BYTES"]
+
+#: Largest |coordinate| of a head position (m): 1000 km, far beyond any tracked space.
+MAX_POSITION_M = 1e6
+#: Largest |angle| of a head rotation (degrees): logs hold [0, 360); unwrapped ones may add turns.
+MAX_ANGLE_DEG = 1e6
+#: Largest pose log or camera path file read (bytes): ~250,000 poses of ~250 characters, a day at 30 Hz.
+MAX_POSE_FILE_BYTES = 64 * 2**20
 
 
 class PoseError(L3gsError, ValueError):
@@ -59,6 +75,11 @@ class PoseTrace:
         if self.position.shape != (n, 3) or self.rotation_deg.shape != (n, 3):
             raise PoseError(f"pose arrays disagree: time {n}, position {self.position.shape}, "
                             f"rotation {self.rotation_deg.shape}")
+        if not np.all(np.isfinite(self.time_s)):
+            i = int(np.argmax(~np.isfinite(self.time_s)))
+            raise PoseError(f"time_s[{i}] = {float(self.time_s[i])!r}: must be finite")
+        _check_pose_values(self.position, self.rotation_deg, lambda i: f"sample {i}",
+                           ("position", "rotation_deg"))
 
     @property
     def rate_hz(self) -> float:
@@ -77,6 +98,24 @@ _NUM = r"(-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)"
 _TRIPLE = rf"\(\s*{_NUM}\s*,\s*{_NUM}\s*,\s*{_NUM}\s*\)"
 _LINE = re.compile(rf"^\s*(\d{{4}}-\d\d-\d\d \d\d:\d\d:\d\d(?:\.\d+)?)\s*,\s*Head Position:\s*{_TRIPLE}\s*,"
                    rf"\s*Head Rotation:\s*{_TRIPLE}")
+_EPOCH = datetime(1970, 1, 1)
+
+
+def _pose_error(field: str, message: str) -> PoseError:
+    return PoseError(f"{field}: {message}")
+
+
+def _check_pose_values(position: np.ndarray, rotation_deg: np.ndarray, where: Callable[[int], str],
+                       names: tuple[str, str]) -> None:
+    """Refuse a non-finite or non-physical pose: ``where(row)`` and ``names`` (position, rotation)
+    label the message, e.g. ``line 7: Head Position[0] = 1e+308: ...``."""
+    for values, name, limit, unit, constant in ((position, names[0], MAX_POSITION_M, "m", "MAX_POSITION_M"),
+                                                (rotation_deg, names[1], MAX_ANGLE_DEG, "degrees", "MAX_ANGLE_DEG")):
+        bad = ~(np.abs(values) <= limit)
+        if bad.any():
+            i, c = (int(k) for k in np.argwhere(bad)[0])
+            raise PoseError(f"{where(i)}: {name}[{c}] = {float(values[i, c])!r}: must be finite and within "
+                            f"+-{limit:g} {unit} ({constant})")
 
 
 def read_pose_log(path: str | os.PathLike[str]) -> PoseTrace:
@@ -85,47 +124,45 @@ def read_pose_log(path: str | os.PathLike[str]) -> PoseTrace:
     Raises
     ------
     PoseError
-        Missing file, or no parsable line after the leading not-tracking lines.
+        Missing or non-regular file, no parsable line after the leading not-tracking lines, a
+        non-finite or non-physical pose (naming the line and the field), timestamps going backwards.
     """
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    except FileNotFoundError:
-        raise PoseError(f"{path}: no such pose log") from None
-    except OSError as exc:
-        raise PoseError(f"{path}: cannot be read ({exc})") from None
+    if not path.exists() and not path.is_symlink():
+        raise PoseError(f"{path}: no such pose log")
+    text = read_text(path, _pose_error, field="pose log", max_bytes=MAX_POSE_FILE_BYTES, errors="replace")
     stamps: list[float] = []
     values: list[list[float]] = []
+    numbers: list[int] = []
     skipped = 0
-    for line in lines:
+    for number, line in iter_lines(text):
         if not line.strip():
             continue
         m = _LINE.match(line)
         if not m:
             skipped += 1
             continue
-        stamp = m.group(1)
-        try:
-            when = datetime.fromisoformat(stamp).timestamp()
+        try:  # naive stamps, read as written (no time zone, no daylight-saving jumps)
+            when = (datetime.fromisoformat(m.group(1)) - _EPOCH).total_seconds()
         except ValueError:
             skipped += 1
             continue
-        nums = [float(g) for g in m.groups()[1:]]
-        if not all(math.isfinite(v) for v in nums):
-            skipped += 1
-            continue
         stamps.append(when)
-        values.append(nums)
-    if skipped:
-        warnings.warn(f"{path}: skipped {skipped} line(s) that are not pose samples", stacklevel=2)
+        values.append([float(g) for g in m.groups()[1:]])
+        numbers.append(number)
+    arr = np.asarray(values, dtype=np.float64).reshape(-1, 6)
+    _check_pose_values(arr[:, :3], arr[:, 3:], lambda i: f"{path}: line {numbers[i]}",
+                       ("Head Position", "Head Rotation"))
     first = next((i for i, v in enumerate(values) if any(x != 0.0 for x in v)), None)
     if first is None:
-        raise PoseError(f"{path}: no tracked pose sample found")
-    stamps, values = stamps[first:], values[first:]
-    raw = np.asarray(stamps)
+        raise PoseError(f"{path}: no tracked pose sample found"
+                        + (f" ({skipped} line(s) are not pose samples)" if skipped else ""))
+    raw, arr, numbers = np.asarray(stamps[first:]), arr[first:], numbers[first:]
     if (np.diff(raw) < 0).any():
         bad = int(np.argmax(np.diff(raw) < 0)) + 1
-        raise PoseError(f"{path}: timestamps go backwards at sample {bad + first}")
+        raise PoseError(f"{path}: line {numbers[bad]}: timestamp goes backwards (sample {bad + first})")
+    if skipped:
+        warnings.warn(f"{path}: skipped {skipped} line(s) that are not pose samples", stacklevel=2)
     # Spread each second's lines evenly over it.
     times = np.empty(len(raw))
     start = 0
@@ -136,7 +173,6 @@ def read_pose_log(path: str | os.PathLike[str]) -> PoseTrace:
         count = end - start
         times[start:end] = raw[start] + np.arange(count) / count
         start = end
-    arr = np.asarray(values)
     return PoseTrace(time_s=times - times[0], position=arr[:, :3], rotation_deg=arr[:, 3:], skipped=skipped)
 
 
@@ -229,10 +265,9 @@ class PoseMapping:
 def read_camera_path(path: str | os.PathLike[str]) -> np.ndarray:
     """Camera path file: 4x4 world-to-camera matrices, 4 rows each, blank line between -> ``[N, 4, 4]``."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise PoseError(f"{path}: no such camera path") from None
+    if not path.exists() and not path.is_symlink():
+        raise PoseError(f"{path}: no such camera path")
+    text = read_text(path, _pose_error, field="camera path", max_bytes=MAX_POSE_FILE_BYTES)
     blocks = [b for b in re.split(r"\n\s*\n", text.strip()) if b.strip()]
     if not blocks:
         raise PoseError(f"{path}: no matrix found")

@@ -18,6 +18,7 @@ samples of its prediction window that lie inside the log.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,12 +42,16 @@ def wrap_deg(angle: np.ndarray | float) -> np.ndarray:
     return (np.asarray(angle, dtype=np.float64) + 180.0) % 360.0 - 180.0
 
 
-def _windows(rate_hz: float, hw_s: float, pw_s: float) -> tuple[int, int]:
-    if not (hw_s > 0 and pw_s > 0):
-        raise PredictionError(f"hw = {hw_s}, pw = {pw_s}: both must be > 0 seconds")
+def _windows(rate_hz: float, hw_s: float, pw_s: float, samples: int) -> tuple[int, int]:
+    """History and prediction windows in samples (at least 1). A window longer than the log is
+    capped at the log's ``samples``: only predicted samples inside the log are scored, so any longer
+    window gives the same errors."""
+    for name, value in (("hw", hw_s), ("pw", pw_s)):
+        if not (isinstance(value, (int, float, np.integer, np.floating)) and 0 < value < math.inf):
+            raise PredictionError(f"{name} = {value!r}: must be a finite number of seconds > 0")
     if not rate_hz > 0:
         raise PredictionError("the pose log needs at least two samples to have a rate")
-    return max(1, int(round(hw_s * rate_hz))), max(1, int(round(pw_s * rate_hz)))
+    return tuple(max(1, int(round(min(w * rate_hz, samples)))) for w in (hw_s, pw_s))
 
 
 def predict_viewport(history: np.ndarray, horizon: int, *, method: str = "lr",
@@ -98,9 +103,9 @@ def viewport_errors(trace: PoseTrace, *, hw_s: float = 0.5, pw_s: float = 1.0, m
     """Mean position error (Euclidean, m) and rotation error (wrapped absolute difference averaged
     over the three angles, deg) of a predictor over a pose trace."""
     rate = trace.rate_hz
-    h, p = _windows(rate, hw_s, pw_s)
     feats = trace.features
     n = len(feats)
+    h, p = _windows(rate, hw_s, pw_s, n)
     pos_err: list[np.ndarray] = []
     rot_err: list[np.ndarray] = []
     for end in range(h, n):  # predict from samples end-h .. end-1

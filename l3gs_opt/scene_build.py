@@ -19,7 +19,16 @@ variant        how the levels are made (sizes ``d_1 < ... < d_L``)
 =============  ==========================================================================
 
 Training views are the teacher's renders from the given cameras, downscaled so that the width
-is at most ``schedule.max_width`` pixels.  Each stage writes a checkpoint (a PLY under
+is at most ``schedule.max_width`` pixels.
+
+Before any stage runs, the teacher is checked against what float32 training survives, naming the
+PLY property and row of the first value outside it: ``scale_*`` (log standard deviations) at
+most :data:`MAX_TRAIN_LOG_SCALE` (e^44 already overflows the squared scales to inf and the first
+training step to NaN) and SH coefficients within :data:`MAX_TRAIN_SH` (the SSIM loss squares
+colours; 1e20 overflows). Cameras are limited by :class:`~l3gs_opt.cameras.Camera` itself (a
+focal length of 1e20 pixels also turns training to NaN) and quaternions by
+:data:`~l3gs_opt.scene_io.MIN_QUAT_NORM`. Should training still produce a non-finite value, the
+error names the stage, not an internal array.  Each stage writes a checkpoint (a PLY under
 ``OUT/.build/``) and records itself in ``OUT/.build/state.json``; with ``resume=True`` a build
 skips the stages already done (if the teacher, cameras, sizes, variant and schedule match).
 """
@@ -38,10 +47,17 @@ import numpy as np
 
 from .bundle import REPRESENTATION, VARIANTS, split_layers, write_bundle
 from .errors import L3gsError
-from .scene_io import SplatScene, read_ply, write_ply
+from .scene_io import SceneError, SplatScene, ply_property, read_ply, write_ply
 
 __all__ = ["BuildError", "BuildSchedule", "QUICK", "DEFAULT", "BuildResult", "build_bundle", "scale_camera",
-           "hierarchy_parents"]
+           "hierarchy_parents", "check_trainable", "MAX_TRAIN_LOG_SCALE", "MAX_TRAIN_SH"]
+
+#: Largest ``scale_*`` (natural log of a standard deviation, world units) a teacher may hold: a
+#: standard deviation of 4.9e8 units. Training overflows (NaN) from about 44.
+MAX_TRAIN_LOG_SCALE = 20.0
+#: Largest |SH coefficient| a teacher may hold (colours are ~0.28 x the DC term, displayed in [0, 1]).
+#: Training overflows (NaN) from about 1e20.
+MAX_TRAIN_SH = 1e6
 
 _STATE_VERSION = 1
 
@@ -133,6 +149,25 @@ def hierarchy_parents(lower: SplatScene, upper: SplatScene) -> np.ndarray:
         _, k = cKDTree(lower.means[lo_rows].astype(np.float64)).query(upper.means[up_rows].astype(np.float64))
         out[up_rows] = lo_rows[k]
     return out
+
+
+def check_trainable(scene: SplatScene) -> None:
+    """Refuse a teacher that float32 training would turn into NaN (see the module docstring).
+
+    Raises
+    ------
+    BuildError
+        Naming the PLY property and row, e.g. ``teacher: scale_0[17] = 50.0: ...``.
+    """
+    for field, values, bad, rule in (
+            ("log_scales", scene.log_scales, scene.log_scales > MAX_TRAIN_LOG_SCALE,
+             f"must be <= {MAX_TRAIN_LOG_SCALE:g} (MAX_TRAIN_LOG_SCALE; a larger log-scale overflows training)"),
+            ("sh", scene.sh, np.abs(scene.sh) > MAX_TRAIN_SH,
+             f"must be within +-{MAX_TRAIN_SH:g} (MAX_TRAIN_SH; larger colours overflow the SSIM loss)")):
+        if bad.any():
+            index = tuple(int(i) for i in np.argwhere(bad)[0])
+            prop, row = ply_property(field, index, scene.sh.shape[1])
+            raise BuildError(f"teacher: {prop}[{row[0]}] = {float(values[index])!r}: {rule}")
 
 
 def _digest(path: Path) -> str:
@@ -228,6 +263,7 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
         scene = teacher
         ident = {"teacher": "<in memory>", "teacher_sha256": hashlib.sha256(scene.means.tobytes()
                                                                             + scene.sh.tobytes()).hexdigest()}
+    check_trainable(scene)
     sizes = check_sizes(sizes, scene.num_splats, field="--layers")
     out = Path(out)
     cams = [scale_camera(c, schedule.max_width) for c in cameras]
@@ -268,9 +304,14 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
                 if it % 10 == 0:
                     bar.set_postfix(loss=f"{loss:.4f}")
 
-        result = fn(vws, tick)
-        if bar is not None:
-            bar.close()
+        try:
+            result = fn(vws, tick)
+        except SceneError as exc:  # the inputs passed check_trainable: say where training failed
+            raise BuildError(f"stage {name}: training produced an invalid scene ({exc}); the teacher and "
+                             f"cameras are within the checked limits: please report this input") from None
+        finally:
+            if bar is not None:
+                bar.close()
         dt = time.perf_counter() - t0
         seconds[name] = dt
         stages.save(name, result, dt)

@@ -15,6 +15,11 @@ properties: ``object_id`` (segmented scenes) and ``layer`` (layered scenes, 0 = 
 Writing keeps only what the scene has: no normals unless the scene carries them, no
 ``f_rest_*`` for SH degree 0, no ``object_id`` for an unsegmented scene, no ``layer`` for a
 single-layer scene.  Reading then writing a file written here is bit-exact.
+
+Reading is bounded: only regular files of at most :data:`l3gs_opt.input_files.MAX_BINARY_BYTES`,
+and a header whose element counts the file cannot hold is refused before anything is allocated.
+Every error names the PLY property and the vertex row (``x[0]: 1e+300 does not fit in float32``),
+never an internal array.
 """
 
 from __future__ import annotations
@@ -27,9 +32,19 @@ from typing import Optional
 import numpy as np
 
 from .errors import L3gsError
+from .input_files import MAX_BINARY_BYTES, check_regular_file
 
 __all__ = ["SceneError", "SplatScene", "read_ply", "write_ply", "sh_degree_from_coeffs",
-           "bytes_per_splat"]
+           "bytes_per_splat", "MIN_QUAT_NORM", "ply_property"]
+
+#: Smallest quaternion norm: the renderer normalises in float32, where the squares of smaller
+#: components underflow (a norm of 1e-25 renders a wrong rotation).
+MIN_QUAT_NORM = 1e-15
+#: Longest PLY header read (bytes); the reference layout's is ~1.5 kB.
+_MAX_PLY_HEADER = 1 << 20
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 _BASE_PROPS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
                "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
@@ -157,6 +172,10 @@ class SplatScene:
         qn = np.linalg.norm(self.quats.astype(np.float64), axis=1)
         if n and (qn == 0).any():
             raise SceneError("quats", "zero quaternion", (int(np.argmin(qn)),))
+        if n and (qn < MIN_QUAT_NORM).any():
+            i = int(np.argmin(qn))
+            raise SceneError("quats", f"norm {qn[i]:.3g} is below {MIN_QUAT_NORM:g} (MIN_QUAT_NORM): too close to zero "
+                                      f"to normalise in float32", (i,))
         for name in ("object_ids", "layers"):
             v = getattr(self, name)
             if v is None:
@@ -312,9 +331,8 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
     """
     from plyfile import PlyData
 
-    path = Path(path)
-    if not path.is_file():
-        raise SceneError("file", f"{path}: no such file")
+    path = check_regular_file(path, lambda f, m: SceneError(f, m), max_bytes=MAX_BINARY_BYTES)
+    _check_ply_header(path)
     try:
         ply = PlyData.read(str(path))
     except Exception as exc:  # plyfile raises several types on bad input
@@ -355,6 +373,11 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
             bad = ~np.isfinite(a)
             if bad.any():
                 raise SceneError(name, f"{path}: {a[bad][0]} is not finite", (int(np.argmax(bad)),))
+            big = np.abs(a) > _FLOAT32_MAX
+            if big.any():  # a float64 property: refused before the cast to float32 makes it inf
+                i = int(np.argmax(big))
+                raise SceneError(name, f"{path}: {float(a[i])!r} does not fit in float32 (|value| <= {_FLOAT32_MAX:.4g})",
+                                 (i,))
         return a
 
     def stack(props) -> np.ndarray:
@@ -372,6 +395,66 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         kwargs["layers"] = col("layer")
     if has_normals:
         kwargs["normals"] = stack(_NORMAL_PROPS)
-    return SplatScene(means=means, log_scales=stack(("scale_0", "scale_1", "scale_2")),
-                      quats=stack(("rot_0", "rot_1", "rot_2", "rot_3")),
-                      opacity_logits=col("opacity").astype(np.float32), sh=sh, **kwargs)
+    try:
+        return SplatScene(means=means, log_scales=stack(("scale_0", "scale_1", "scale_2")),
+                          quats=stack(("rot_0", "rot_1", "rot_2", "rot_3")),
+                          opacity_logits=col("opacity").astype(np.float32), sh=sh, **kwargs)
+    except SceneError as exc:  # name the PLY property, not the internal array
+        if exc.field not in _SCENE_FIELDS or not exc.index:
+            raise
+        field, index = ply_property(exc.field, exc.index, k)
+        message = str(exc).split(": ", 1)[1]
+        raise SceneError(field, f"{path}: {message}", index) from None
+
+
+_SCENE_FIELDS = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
+                 "quats": None, "opacity_logits": ("opacity",), "sh": None, "normals": _NORMAL_PROPS,
+                 "object_ids": ("object_id",), "layers": ("layer",)}
+
+
+def ply_property(field: str, index: tuple[int, ...], coeffs: int) -> tuple[str, tuple[int, ...]]:
+    """The PLY property and vertex row of entry ``index`` of a :class:`SplatScene` array ``field``
+    (``("means", (5, 1))`` -> ``("y", (5,))``; ``coeffs`` = SH coefficients per channel)."""
+    row = (index[0],)
+    if field == "quats":
+        return ("rot_0..3" if len(index) == 1 else f"rot_{index[1]}"), row
+    if field == "sh":
+        if len(index) < 3:
+            return "f_dc_0..2", row
+        k, c = index[1], index[2]
+        return (f"f_dc_{c}" if k == 0 else f"f_rest_{c * (coeffs - 1) + k - 1}"), row
+    names = _SCENE_FIELDS[field]
+    return names[index[1] if len(index) > 1 else 0], row
+
+
+def _check_ply_header(path: Path) -> None:
+    """Refuse a header whose element counts the file cannot hold (before plyfile allocates them).
+
+    Each element takes at least its scalar sizes (binary) or two characters per property (ASCII).
+    Headers that do not parse are left to plyfile, which names the fault.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_PLY_HEADER)
+    end = head.find(b"end_header")
+    if end < 0:
+        if len(head) == _MAX_PLY_HEADER:
+            raise SceneError("file", f"{path}: no 'end_header' in the first {_MAX_PLY_HEADER:,} bytes")
+        return
+    newline = head.find(b"\n", end)
+    body = path.stat().st_size - (newline + 1 if newline >= 0 else len(head))
+    ascii_ = False
+    elements: list[list] = []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        tok = line.split()
+        if len(tok) >= 2 and tok[0] == "format":
+            ascii_ = tok[1] == "ascii"
+        elif len(tok) == 3 and tok[0] == "element" and tok[2].isdigit():
+            elements.append([tok[1], int(tok[2]), 0])
+        elif len(tok) >= 3 and tok[0] == "property" and elements:
+            size = _PLY_SIZES.get(tok[2] if tok[1] == "list" else tok[1], 1)
+            elements[-1][2] += 2 if ascii_ else size
+    for name, count, least in elements:
+        if count * max(least, 1) > body:
+            raise SceneError("file", f"{path}: header claims {count:,} '{name}' elements, more than the "
+                                     f"{body:,} bytes after the header can hold")
+        body -= count * max(least, 1)

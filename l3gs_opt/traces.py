@@ -2,13 +2,25 @@
 
 Formats: one throughput value in Mbit/s per line, one line per second (the Lumos5G files
 bundled in ``l3gs_opt/data/traces``), or CSV ``time_s,mbps``. Lines that are not numbers are
-skipped with one warning that counts them; a file with no number at all is an error.
+skipped with one warning that counts them (given only when the file is read; a file that is
+refused gives its error alone); a file with no number at all is an error.
+
+The time column of a CSV sets the time base: each sample holds from its time until the next
+sample's (the last one for the median spacing), and the trace is resampled to one sample per
+whole second, the mean throughput over that second (a 10 Hz trace of N lines gives N / 10
+samples; a 1 Hz trace is kept as it is). Times must be finite and increasing.
+
+Limits (refused by name, before anything large is built): a throughput sample above
+:data:`MAX_MBPS` Mbit/s, more than :data:`MAX_TRACE_SAMPLES` samples (after resampling), a file
+above :data:`MAX_TRACE_FILE_BYTES`, and a slot's byte count above :data:`MAX_SLOT_BYTES` = 2^53
+in :func:`mbps_to_bytes` (so every byte count is an exact integer in float64 as well).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import warnings
 from dataclasses import dataclass
 from importlib import resources
@@ -17,9 +29,21 @@ from pathlib import Path
 import numpy as np
 
 from .errors import L3gsError
+from .input_files import read_text
 
 __all__ = ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes",
-           "synthetic_bandwidth"]
+           "synthetic_bandwidth", "iter_lines", "MAX_MBPS", "MAX_TRACE_SAMPLES", "MAX_TRACE_FILE_BYTES", "MAX_SLOT_BYTES"]
+
+#: Largest throughput sample read (Mbit/s): 10 Tbit/s, ~5000 x the fastest 5G trace bundled. A
+#: larger value is a unit mistake or corruption; refusing it (rather than clipping it) keeps the
+#: link honest, and keeps one slot's bytes (1.25e12 per second) far below :data:`MAX_SLOT_BYTES`.
+MAX_MBPS = 1e7
+#: Most samples in a trace (after resampling to one per second): 11.6 days at 1 Hz.
+MAX_TRACE_SAMPLES = 10**6
+#: Largest trace file read (bytes): room for MAX_TRACE_SAMPLES CSV lines of ~30 characters.
+MAX_TRACE_FILE_BYTES = 32 * 2**20
+#: Largest byte count of one slot (2^53: every count is exact in float64 too, as instances require).
+MAX_SLOT_BYTES = 2**53
 
 
 class TraceError(L3gsError, ValueError):
@@ -36,6 +60,7 @@ class BandwidthTrace:
     mbps : float array [N]
         Throughput in Mbit/s, one sample per ``sample_s`` seconds.
     sample_s : float
+        1 for every trace read from a file (a CSV is resampled to one sample per second).
     skipped : int
         Lines that were not numbers.
     """
@@ -48,8 +73,8 @@ class BandwidthTrace:
     def scaled(self, target_mean_mbps: float) -> tuple["BandwidthTrace", float]:
         """The trace scaled so its mean is ``target_mean_mbps``; returns it and the factor."""
         mean = float(self.mbps.mean())
-        if not (target_mean_mbps > 0 and math.isfinite(target_mean_mbps)):
-            raise TraceError(f"target mean {target_mean_mbps!r} Mbit/s: must be a positive number")
+        if not (0 < target_mean_mbps <= MAX_MBPS):
+            raise TraceError(f"target mean {target_mean_mbps!r} Mbit/s: must be a positive number <= {MAX_MBPS:g}")
         if mean <= 0:
             raise TraceError(f"{self.name}: mean throughput is 0, cannot scale")
         factor = target_mean_mbps / mean
@@ -69,66 +94,140 @@ def bundled_traces() -> dict[str, Path]:
     return {Path(str(p)).stem: Path(str(p)) for p in folder.iterdir() if str(p).endswith(".txt")}
 
 
+_LINE_END = re.compile(r"\r\n|\r|\n")
+
+
+def iter_lines(text: str, *, block_chars: int = 1 << 20):
+    """``(number, line)`` of every line of ``text`` (1-based, split as :meth:`str.splitlines` does),
+    a block at a time: a file of millions of short lines is never held as one list of strings."""
+    number, start, n = 0, 0, len(text)
+    while start < n:
+        end = min(start + block_chars, n)
+        if end < n:  # cut after the block's last line end (or the first one after the block)
+            cut = max(text.rfind("\n", start, end), text.rfind("\r", start, end))
+            match = _LINE_END.search(text, cut if cut >= start else end)
+            end = match.end() if match else n
+        for line in text[start:end].splitlines():
+            number += 1
+            yield number, line
+        start = end
+
+
+def _trace_error(field: str, message: str) -> TraceError:
+    return TraceError(f"{field}: {message}")
+
+
 def read_bandwidth_trace(path: str | os.PathLike[str]) -> BandwidthTrace:
     """Read a Mbit/s-per-line trace or a ``time_s,mbps`` CSV; a bundled trace's name also works.
+
+    A CSV is resampled to one sample per whole second by its time column (see the module
+    docstring); the result always has ``sample_s = 1``.
 
     Raises
     ------
     TraceError
-        Missing file, no numeric sample, a negative or non-finite sample (naming the line).
+        Missing or non-regular file, no numeric sample, a negative, non-finite or too large
+        sample or time (naming the line and the column), times that do not increase, too many
+        samples.
     """
     bundled = bundled_traces()
     if not Path(path).exists() and str(path) in bundled:
         path = bundled[str(path)]
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    except FileNotFoundError:
-        raise TraceError(f"{path}: no such trace file (bundled traces: {', '.join(sorted(bundled))})") from None
-    except OSError as exc:
-        raise TraceError(f"{path}: cannot be read ({exc})") from None
+    if not path.exists() and not path.is_symlink():
+        raise TraceError(f"{path}: no such trace file (bundled traces: {', '.join(sorted(bundled))})")
+    text = read_text(path, _trace_error, field="trace", max_bytes=MAX_TRACE_FILE_BYTES, errors="replace")
     values: list[float] = []
     times: list[float] = []
     skipped = 0
-    for number, line in enumerate(lines, start=1):
-        text = line.strip()
-        if not text:
+    for number, line in iter_lines(text):
+        text_ = line.strip()
+        if not text_ or text_.count(",") > 1:
+            skipped += bool(text_)
             continue
-        parts = [p.strip() for p in text.split(",")]
+        parts = [p.strip() for p in text_.split(",")]
         try:
             if len(parts) == 2:
                 t, v = float(parts[0]), float(parts[1])
-                times.append(t)
             elif len(parts) == 1:
-                v = float(parts[0])
+                t, v = None, float(parts[0])
             else:
                 raise ValueError
         except ValueError:
             skipped += 1
             continue
-        if not math.isfinite(v) or v < 0:
-            raise TraceError(f"{path}: line {number}: throughput {v!r} Mbit/s must be finite and >= 0")
+        column = "mbps" if t is not None else "throughput"
+        if not (0 <= v <= MAX_MBPS):
+            raise TraceError(f"{path}: line {number}: {column} {v!r} Mbit/s must be finite, >= 0 and "
+                             f"<= {MAX_MBPS:g} (MAX_MBPS)")
+        if values and (t is None) != (not times):
+            raise TraceError(f"{path}: line {number}: mixes one-column and time_s,mbps lines")
+        if t is not None:
+            if not math.isfinite(t):
+                raise TraceError(f"{path}: line {number}: time_s {t!r} must be finite")
+            if times and t <= times[-1]:
+                raise TraceError(f"{path}: line {number}: time_s {t!r} must increase (previous {times[-1]!r})")
+            times.append(t)
         values.append(v)
+        if len(values) > MAX_TRACE_SAMPLES:
+            raise TraceError(f"{path}: line {number}: more than {MAX_TRACE_SAMPLES:,} samples (MAX_TRACE_SAMPLES)")
     if not values:
         raise TraceError(f"{path}: no throughput sample found")
+    mbps = np.asarray(values, dtype=np.float64)
+    if times:
+        mbps = _per_second(np.asarray(times, dtype=np.float64), mbps, path)
     if skipped:
         warnings.warn(f"{path}: skipped {skipped} line(s) that are not numbers", stacklevel=2)
-    sample_s = 1.0
-    if times:
-        if len(times) != len(values):
-            raise TraceError(f"{path}: mixes one-column and time_s,mbps lines")
-        steps = np.diff(np.asarray(times))
-        if len(steps) and (steps <= 0).any():
-            bad = int(np.argmax(steps <= 0)) + 1
-            raise TraceError(f"{path}: time_s must increase (sample {bad})")
-        if len(steps):
-            sample_s = float(np.median(steps))
-    return BandwidthTrace(path.stem, np.asarray(values, dtype=np.float64), sample_s, skipped)
+    return BandwidthTrace(path.stem, mbps, 1.0, skipped)
+
+
+def _per_second(times: np.ndarray, mbps: np.ndarray, path: Path) -> np.ndarray:
+    """Samples at increasing ``times`` (s), each holding until the next one (the last for the median
+    spacing), averaged over every whole second from the first time: ``[floor(duration)]`` Mbit/s."""
+    t = times - times[0]
+    last = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    ends = np.append(t[1:], t[-1] + last)
+    duration = float(ends[-1])
+    if not math.isfinite(duration) or duration > MAX_TRACE_SAMPLES:
+        raise TraceError(f"{path}: time_s spans {duration!r} s, more than {MAX_TRACE_SAMPLES:,} one-second "
+                         f"samples (MAX_TRACE_SAMPLES)")
+    seconds = int(math.floor(duration + 1e-9))
+    if seconds < 1:
+        raise TraceError(f"{path}: time_s spans {duration!r} s, less than one whole second")
+    # Every (sample, second) overlap: sample i covers [t_i, ends_i), second k covers [k, k + 1).
+    first = np.floor(t).astype(np.int64)
+    count = np.maximum(np.ceil(ends).astype(np.int64) - first, 1)
+    sample = np.repeat(np.arange(len(t)), count)
+    second = first[sample] + np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    overlap = np.minimum(ends[sample], second + 1.0) - np.maximum(t[sample], second)
+    keep = (second < seconds) & (overlap > 0)
+    return np.bincount(second[keep], weights=mbps[sample[keep]] * overlap[keep], minlength=seconds)[:seconds]
 
 
 def mbps_to_bytes(mbps: np.ndarray, slot_s: float = 1.0) -> np.ndarray:
-    """Bytes per slot from Mbit/s (1 Mbit = 10**6 bits), rounded down: int64 [N]."""
-    return np.floor(np.asarray(mbps, dtype=np.float64) * 1e6 / 8.0 * slot_s).astype(np.int64)
+    """Bytes per slot from Mbit/s (1 Mbit = 10**6 bits), rounded down: int64 [N].
+
+    Raises
+    ------
+    TraceError
+        A sample that is negative or not finite, a slot length that is not a positive number, or
+        a byte count above :data:`MAX_SLOT_BYTES` (naming the sample).
+    """
+    if not (isinstance(slot_s, (int, float, np.floating, np.integer)) and 0 < slot_s < math.inf):
+        raise TraceError(f"slot_s = {slot_s!r}: must be a positive number of seconds")
+    x = np.asarray(mbps, dtype=np.float64)
+    bad = ~(x >= 0) | ~np.isfinite(x)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise TraceError(f"mbps[{i}] = {float(x.flat[i])!r}: must be finite and >= 0 Mbit/s")
+    with np.errstate(over="ignore"):  # an overflow is inf, refused just below
+        out = np.floor(x * 1e6 / 8.0 * slot_s)
+    over = ~(out <= MAX_SLOT_BYTES)
+    if over.any():
+        i = int(np.argmax(over))
+        raise TraceError(f"mbps[{i}] = {float(x.flat[i])!r} Mbit/s over a {slot_s!r} s slot: {out.flat[i]:.4g} bytes, more "
+                         f"than 2^53 (MAX_SLOT_BYTES)")
+    return out.astype(np.int64)
 
 
 def synthetic_bandwidth(seconds: int = 60, mean_mbps: float = 11.8, *, variability: float = 0.5,

@@ -80,7 +80,8 @@ def test_blender_synthetic_style(tmp_path):
 @pytest.mark.parametrize("obj,match", [
     ({"width": 0}, r"width: 0 must be a positive integer"),
     ({"fx": -1.0}, r"fx: -1.0 must be > 0"),
-    ({"cy": float("nan")}, r"cy: nan is not finite"),
+    ({"cy": float("nan")}, r"NaN is not valid JSON"),  # strict JSON (issue 19); 1e999 -> inf: see below
+    ({"cy": 1.5e300}, r"cy: inf is not finite"),  # written as 1e999, which JSON reads as inf
     ({"world_to_camera": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}, r"not a rotation"),
     ({"world_to_camera": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]}, r"world_to_camera\[3\]"),
     ({"background": [0, 1]}, r"background"),
@@ -89,7 +90,7 @@ def test_blender_synthetic_style(tmp_path):
 def test_camera_json_errors_name_the_field(tmp_path, obj, match):
     good = camera_to_dict(make_camera())
     bad = dict(good, **obj)
-    (tmp_path / "c.json").write_text(json.dumps([good, bad]))
+    (tmp_path / "c.json").write_text(json.dumps([good, bad]).replace("1.5e+300", "1e999"))
     with pytest.raises(CameraError, match=match) as info:
         load_cameras(tmp_path / "c.json")
     assert isinstance(info.value, L3gsError) and isinstance(info.value, ValueError)

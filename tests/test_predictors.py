@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -38,8 +39,10 @@ def test_pose_log_errors(tmp_path):
     with pytest.raises(PoseError, match="no tracked pose sample"):
         read_pose_log(tmp_path / "empty.txt")
     (tmp_path / "trunc.txt").write_text(LOG.splitlines()[1][:60] + "\n")
-    with pytest.warns(UserWarning), pytest.raises(PoseError, match="no tracked pose sample"):
-        read_pose_log(tmp_path / "trunc.txt")
+    with warnings.catch_warnings():  # issue 19 item 10: the error alone, no "skipped" warning before it
+        warnings.simplefilter("error")
+        with pytest.raises(PoseError, match=r"no tracked pose sample found \(1 line\(s\) are not pose samples\)"):
+            read_pose_log(tmp_path / "trunc.txt")
 
 
 def test_linear_walk_is_predicted_exactly():
