@@ -2,13 +2,57 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, Callable, Mapping
 
+import numpy as np
+
+from .errors import SolveError
 from .instance import Instance
 from .items import ItemInstance
 from .solution import Solution
 
-__all__ = ["METHODS", "method_names", "solve"]
+__all__ = ["METHODS", "method_names", "solve", "check_time_limit", "check_slot"]
+
+
+def check_time_limit(value: Any, *, name: str = "time_limit_s") -> float | None:
+    """``time_limit_s`` as every method takes it: ``None`` (no limit) or a float > 0 seconds.
+
+    ``inf`` (``--time-limit inf``) means "no limit" and is returned as ``None``, so that every
+    method and backend runs exactly as it does without a limit. ``name`` is the argument named in
+    the message (the CLI says ``--time-limit``).
+
+    Raises
+    ------
+    SolveError
+        Not a number (a bool or a string included), NaN, zero or negative.
+    """
+    if value is None:
+        return None
+    shown = value.item() if isinstance(value, np.generic) else value
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise SolveError(f"{name} = {shown!r}: must be a number of seconds > 0 (or inf for no limit)")
+    seconds = float(value)
+    if math.isnan(seconds) or seconds <= 0:
+        raise SolveError(f"{name} = {shown!r}: must be > 0 seconds (or inf for no limit)")
+    return None if math.isinf(seconds) else seconds
+
+
+def check_slot(value: Any, T: int, *, name: str = "slot") -> int | None:
+    """``slot`` as every method takes it: ``None`` or a Python ``int`` in ``0..T-1``; a numpy
+    integer is accepted and converted, a bool or a float (even ``1.0``) is not.
+
+    Raises
+    ------
+    SolveError
+        Not an integer, or out of range.
+    """
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 0 <= value < T:
+        shown = value.item() if isinstance(value, np.generic) else value
+        raise SolveError(f"{name} = {shown!r}: must be an integer in 0..{T - 1}")
+    return int(value)
 
 
 def _ilp(instance: Instance, **kw: Any) -> Solution:
@@ -52,9 +96,11 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
     form : {"standard", "gap"}
         ``gap``: Problem A, the GAP form (layered only).
     slot : int, optional
-        Solve the single-slot MCKP of this slot given ``instance.held``.
+        Solve the single-slot MCKP of this slot given ``instance.held`` (0-based; a numpy
+        integer is accepted; checked by :func:`check_slot`).
     time_limit_s : float, optional
-        Seconds; a run that hits it says ``time_limit`` and carries a valid bound.
+        Seconds, > 0; a run that hits it says ``time_limit`` and carries a valid bound. ``None``
+        or ``inf``: no limit. Checked (:func:`check_time_limit`) before anything else.
     presolve : bool
         Drop chunks that cannot matter before modelling (see :mod:`l3gs_opt.presolve`). The
         optimum is unchanged, but the ``lp`` bound is that of the presolved model: dropping
@@ -65,8 +111,11 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
     Raises
     ------
     SolveError
-        Unknown method, form or backend; a slot out of range; an option that does not apply.
+        Unknown method, form or backend; a time limit that is not > 0 seconds; a slot out of
+        range; an option that does not apply.
     """
+    time_limit_s = check_time_limit(time_limit_s)
+    slot = check_slot(slot, instance.T) if isinstance(instance, (Instance, ItemInstance)) else slot
     if isinstance(instance, ItemInstance):
         from l3gs_opt.solvers.items import solve_items
 
@@ -78,5 +127,5 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
         from l3gs_opt.solvers.registry import resolve
 
         fn = resolve(method)
-    return fn(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
-                           presolve=presolve, options=options)
+    return fn(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s, presolve=presolve,
+              options=options)

@@ -18,13 +18,15 @@ __all__ = ["main", "build_parser"]
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
-    from .api import solve
+    from .api import check_slot, check_time_limit, solve
     from .items_io import load_problem
     from .report_table import comparison_table
 
+    time_limit = check_time_limit(args.time_limit, name="--time-limit")
     instance = load_problem(args.instance)
-    solution = solve(instance, args.method, backend=args.backend, form=args.form, slot=args.slot,
-                     time_limit_s=args.time_limit, presolve=not args.no_presolve)
+    solution = solve(instance, args.method, backend=args.backend, form=args.form,
+                     slot=check_slot(args.slot, instance.T, name="--slot"), time_limit_s=time_limit,
+                     presolve=not args.no_presolve)
     if args.json:
         from .jsonout import dumps
 
@@ -177,12 +179,15 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
+    from .api import check_slot, check_time_limit
     from .bench import BenchTask, read_records, run_bench
     from .instance_io import load_instance
     from .report import annotate, write_report
     from .suites import InstanceSpec, default_methods
 
+    time_limit = check_time_limit(args.time_limit, name="--time-limit")
     inst = load_instance(args.instance)  # fail early, with the instance's own error
+    check_slot(args.slot, inst.T, name="--slot")   # here, not in a worker (its traceback would print first)
     single = args.slot is not None or inst.T == 1
     spec = InstanceSpec("compare", Path(args.instance).stem, "file",
                         {"path": str(Path(args.instance).resolve()), "slot": args.slot}, single)
@@ -190,7 +195,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     _check_methods(methods)
     out = Path(args.out)
     path = out / "compare.jsonl"
-    run_bench([BenchTask(spec, m) for m in methods], path, time_limit_s=args.time_limit, jobs=1,
+    run_bench([BenchTask(spec, m) for m in methods], path, time_limit_s=time_limit, jobs=1,
               progress=not args.no_progress, fresh=True)
     rows = annotate(read_records(path))
     width = max(len(r["method"]) for r in rows)
@@ -238,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", default="highs", choices=[b.value for b in Backend])
     p.add_argument("--form", default="standard", choices=["standard", "gap"])
     p.add_argument("--slot", type=int, default=None, help="solve the single-slot MCKP of this slot (0-based)")
-    p.add_argument("--time-limit", type=float, default=None, metavar="S", help="seconds")
+    p.add_argument("--time-limit", type=float, default=None, metavar="S", help="seconds (> 0; inf: no limit)")
     p.add_argument("--no-presolve", action="store_true", help="build the naive model")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_solve)
@@ -305,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("instance")
     k.add_argument("--methods", default=None)
     k.add_argument("--slot", type=int, default=None)
-    k.add_argument("--time-limit", type=float, default=60.0, metavar="S")
+    k.add_argument("--time-limit", type=float, default=60.0, metavar="S", help="seconds per method (> 0; inf: none)")
     k.add_argument("--out", default="compare-out")
     k.add_argument("--no-progress", action="store_true")
     k.set_defaults(func=_cmd_compare)

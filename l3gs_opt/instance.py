@@ -25,6 +25,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import InstanceError
+from .input_files import MAX_JSON_DEPTH, parse_json
 
 __all__ = [
     "SCHEMA",
@@ -126,9 +127,12 @@ def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count:
     try:
         # A JSON round trip both checks and copies; read-only mappings (an instance's own meta,
         # passed back through ``replace``) are written as the objects they stand for.
-        meta = json.loads(json.dumps(meta, allow_nan=False, default=_mapping_as_dict))
-    except (TypeError, ValueError) as exc:
+        text = json.dumps(meta, allow_nan=False, default=_mapping_as_dict)
+    except (TypeError, ValueError, RecursionError) as exc:
         raise InstanceError("meta", f"must be JSON-serialisable: {exc}") from None
+    # Strictly decoded, one level less deep than a file allows (meta sits inside the instance
+    # object): keys 1 and "1" would collide, and a saved instance must read back.
+    meta = parse_json(text, lambda _key, message: InstanceError("meta", message), max_depth=MAX_JSON_DEPTH - 1)
     return float(slot_s), options, names, types.MappingProxyType(meta)
 
 

@@ -11,17 +11,18 @@ hold the arrays under the same names and the other keys as JSON text in 0-d stri
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from .instance_io import check_head, nested_array, read_problem_file
+from .input_files import parse_json
+from .instance_io import (check_head, instance_from_raw, nested_array, npz_fields, read_raw_problem,
+                          write_problem_file)
 from .items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
 
-__all__ = ["items_from_dict", "load_items", "load_problem", "save_items"]
+__all__ = ["items_from_dict", "items_from_raw", "load_items", "load_problem", "save_items"]
 
 _KEYS = ("schema", "bandwidth", "slot_s", "object", "cost", "utility", "group", "requires", "held", "options",
          "names", "meta")
@@ -48,7 +49,7 @@ def _build(data: Mapping[str, Any]) -> ItemInstance:
     return ItemInstance(bandwidth=data["bandwidth"], object=data["object"], cost=data["cost"],
                         utility=data["utility"], group=data.get("group"), requires=data.get("requires"),
                         held=data.get("held"), slot_s=data.get("slot_s", 1.0), options=data.get("options"),
-                        names=data.get("names"), meta=data.get("meta") or {})
+                        names=data.get("names"), meta=data.get("meta"))
 
 
 def items_from_dict(data: Any) -> ItemInstance:
@@ -73,47 +74,47 @@ def items_from_dict(data: Any) -> ItemInstance:
     return _build(out)
 
 
-def load_items(path: str | os.PathLike[str]) -> ItemInstance:
-    """Load an item instance from ``.json`` or ``.npz``; every fault is an :class:`ItemInstanceError`."""
-    is_npz, data = read_problem_file(path, _KEYS, _DIMS, error=ItemInstanceError, what="item instance")
+def items_from_raw(is_npz: bool, raw: Any) -> ItemInstance:
+    """The item instance from :func:`l3gs_opt.instance_io.read_raw_problem`'s answer."""
     if not is_npz:
-        return items_from_dict(data)
-    _check_head(data)
-    return _build(data)
+        return items_from_dict(raw)
+    fields = npz_fields(raw, _KEYS, _DIMS, error=ItemInstanceError)
+    _check_head(fields)
+    return _build(fields)
+
+
+def load_items(path: str | os.PathLike[str]) -> ItemInstance:
+    """Load an item instance from ``.json`` or ``.npz`` (within the limits of
+    :func:`l3gs_opt.instance_io.read_raw_problem`); every fault is an :class:`ItemInstanceError`."""
+    return items_from_raw(*read_raw_problem(path, error=ItemInstanceError))
 
 
 def save_items(instance: ItemInstance, path: str | os.PathLike[str]) -> Path:
-    """Write ``.json`` (small) or ``.npz`` (large), chosen by the suffix."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write ``.json`` (small) or ``.npz`` (large), chosen by the suffix (see
+    :func:`l3gs_opt.instance_io.write_problem_file`)."""
     data = instance.to_dict()
-    if path.suffix.lower() == ".npz":
-        arrays: dict[str, np.ndarray] = {}
-        for key, value in data.items():
-            arrays[key] = np.asarray(getattr(instance, key)) if key in _DIMS else np.array(json.dumps(value))
-        np.savez_compressed(path, **arrays)
-    else:
-        path.write_text(json.dumps(data, allow_nan=False) + "\n", encoding="utf-8")
-    return path
+    return write_problem_file(path, data, {key: getattr(instance, key) for key in _DIMS if key in data},
+                              error=ItemInstanceError)
 
 
-def _schema_of(path: Path) -> str | None:
-    """The file's ``schema`` string, or None when it cannot be read cheaply (the loader then says why)."""
+def _schema_of(is_npz: bool, raw: Any) -> Any:
+    """The ``schema`` a read file states, or None when it states none readable (the loader then says why)."""
+    if not is_npz:
+        return raw.get("schema") if isinstance(raw, Mapping) else None
+    arr = raw.get("schema")
+    if arr is None or arr.ndim != 0 or arr.dtype.kind != "U":
+        return None
     try:
-        if path.suffix.lower() == ".npz":
-            with np.load(path, allow_pickle=False) as npz:
-                return str(npz["schema"]) if "schema" in npz.files else None
-        data = json.loads(path.read_text(encoding="utf-8"))
-        return data.get("schema") if isinstance(data, Mapping) else None
-    except Exception:  # noqa: BLE001 - any fault here is reported by the real loader
+        return parse_json(str(arr), ItemInstanceError, field="schema")
+    except ItemInstanceError:
         return None
 
 
 def load_problem(path: str | os.PathLike[str]) -> Any:
-    """Load either instance form by its ``schema``: ``l3gs-opt/items@1`` gives an
-    :class:`ItemInstance`, anything else goes to :func:`l3gs_opt.instance_io.load_instance` (which
-    names a wrong or missing schema)."""
-    from .instance_io import load_instance
-
-    path = Path(path)
-    return load_items(path) if _schema_of(path) == ITEMS_SCHEMA else load_instance(path)
+    """Load either instance form by its ``schema``, reading the file once: ``l3gs-opt/items@1``
+    gives an :class:`ItemInstance`, anything else goes to the instance loader (which names a wrong
+    or missing schema). A file that cannot be read is an :class:`~l3gs_opt.errors.InstanceError`."""
+    is_npz, raw = read_raw_problem(path)
+    if _schema_of(is_npz, raw) == ITEMS_SCHEMA:
+        return items_from_raw(is_npz, raw)
+    return instance_from_raw(is_npz, raw)

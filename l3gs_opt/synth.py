@@ -21,10 +21,13 @@ from .errors import InstanceError
 from .instance import Instance, Options
 from .traces import mbps_to_bytes, read_bandwidth_trace
 
-__all__ = ["DEFAULT_TRACE", "BYTES_PER_SPLAT", "synth_instance", "walking_viewer"]
+__all__ = ["DEFAULT_TRACE", "BYTES_PER_SPLAT", "MAX_SYNTH_ENTRIES", "synth_instance", "walking_viewer"]
 
 DEFAULT_TRACE = "lumos-throughput-mid-11"
 BYTES_PER_SPLAT = 248
+#: Most utility entries (slots x objects x layers) of a synthetic instance: the generator holds a
+#: few arrays of this size at once (about 1 GB at the limit).
+MAX_SYNTH_ENTRIES = 2**24
 
 
 def walking_viewer(slots: int, *, rng: np.random.Generator, room_m: float = 10.0, speed_mps: float = 0.6,
@@ -70,9 +73,19 @@ def synth_instance(*, objects: int = 20, layers: int = 4, slots: int = 60, seed:
         First trace sample of the window (one sample per second); the window has ``slots`` samples.
     total_splats : int
         Splats of the whole scene (all objects, all layers).
+
+    Raises
+    ------
+    InstanceError
+        A count or the seed that is not a non-negative integer (``layers``, ``slots`` >= 1), more
+        than :data:`MAX_SYNTH_ENTRIES` utilities, a trace window that does not fit.
     """
-    if objects < 0 or layers < 1 or slots < 1:
-        raise InstanceError("synth", f"objects={objects}, layers={layers}, slots={slots}: need J >= 0, L >= 1, T >= 1")
+    for name, value, low in (("objects", objects, 0), ("layers", layers, 1), ("slots", slots, 1), ("seed", seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise InstanceError(name, f"= {value!r}: must be an integer >= {low}")
+    if objects * layers * slots > MAX_SYNTH_ENTRIES:
+        raise InstanceError("objects", f"objects x layers x slots = {objects} x {layers} x {slots} utilities, more than "
+                                       f"the limit of {MAX_SYNTH_ENTRIES:,} for a synthetic instance")
     rng = np.random.default_rng(seed)
     raw = read_bandwidth_trace(trace)
     scaled, factor = raw.scaled(mbps) if mbps is not None else (raw, 1.0)

@@ -419,8 +419,11 @@ def solve_items(instance: ItemInstance, method: str = "ilp", *, backend: str = "
         A method that does not apply to item instances (``exact``, ``progressive``, ``slope``,
         ``static`` are written for Problem I/II's chains), or a malformed name.
     """
+    from l3gs_opt.api import check_time_limit   # the one check every method shares (inf: no limit)
+
     from .rolling import parse_eps
 
+    time_limit_s = check_time_limit(time_limit_s)
     if not isinstance(method, str):
         raise SolveError(f"method {method!r} must be a string")
     if method in ("ilp", "lp"):
