@@ -17,11 +17,17 @@ __all__ = ["intrinsics_from_fov", "orbit_path", "walk_path", "scene_path"]
 
 
 def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> dict:
-    """``fx = fy = width / (2 tan(fov_x / 2))``, principal point at the image centre."""
+    """``fx = fy = width / (2 tan(fov_x / 2))``, principal point at the image centre; checked as a
+    :class:`Camera` is (image size limits), so a bad size fails here, before any slot runs."""
     if not 1.0 <= fov_x_deg <= 170.0:
         raise CameraError(f"fov_x_deg: {fov_x_deg} must be in [1, 170]")
+    for key, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+            raise CameraError(f"{key}: {v!r} must be a positive integer")
     f = width / (2.0 * math.tan(math.radians(fov_x_deg) / 2.0))
-    return {"width": width, "height": height, "fx": f, "fy": f, "cx": width / 2.0, "cy": height / 2.0}
+    out = {"width": width, "height": height, "fx": f, "fy": f, "cx": width / 2.0, "cy": height / 2.0}
+    Camera(**out, world_to_camera=np.eye(4))
+    return out
 
 
 def orbit_path(n_views: int = 36, *, width: int = 800, height: int = 600, fov_x_deg: float = 70.0,

@@ -10,8 +10,9 @@ lost (``budget="per_slot"``, the paper's per-slot budget) or banked for the next
 (``budget="cumulative"``: the bytes up to slot t are bounded by the bandwidth up to slot t,
 the instance option of the same name).
 
-Byte counts are Python ints (exact); a slot never delivers more than its capacity, and
-``delivered + idle == capacity`` holds in every slot.
+Byte counts are Python ints (exact), at most 2^53 each (:data:`l3gs_opt.traces.MAX_SLOT_BYTES`, as
+in instances); a slot never delivers more than its capacity, and ``delivered + idle == capacity``
+holds in every slot.
 
 Example
 -------
@@ -31,6 +32,7 @@ from typing import Hashable, Sequence
 import numpy as np
 
 from .errors import L3gsError
+from .traces import MAX_SLOT_BYTES
 
 __all__ = ["LinkError", "Transfer", "SlotDelivery", "Link", "BUDGETS", "max_min_shares", "split_bytes"]
 
@@ -104,6 +106,8 @@ def _byte_count(value, name: str, index: int | None = None, *, positive: bool = 
     v = int(value)
     if v < (1 if positive else 0):
         raise LinkError(f"{where} = {v}: must be {'> 0' if positive else '>= 0'} bytes")
+    if v > MAX_SLOT_BYTES:
+        raise LinkError(f"{where} = {v}: more than 2^53 bytes (MAX_SLOT_BYTES)")
     return v
 
 

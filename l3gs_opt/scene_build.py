@@ -47,6 +47,7 @@ import numpy as np
 
 from .bundle import REPRESENTATION, VARIANTS, split_layers, write_bundle
 from .errors import L3gsError
+from .input_files import read_json
 from .scene_io import SceneError, SplatScene, ply_property, read_ply, write_ply
 
 __all__ = ["BuildError", "BuildSchedule", "QUICK", "DEFAULT", "BuildResult", "build_bundle", "scale_camera",
@@ -187,9 +188,12 @@ class _Stages:
         self.key = key
         self.done: dict = {}
         if resume and self.state_path.is_file():
-            state = json.loads(self.state_path.read_text())
+            state = read_json(self.state_path, lambda f, m: BuildError(f"--resume: {m}"))
+            if not isinstance(state, dict) or not isinstance(state.get("done"), dict):
+                raise BuildError(f"--resume: {self.state_path} is not a build checkpoint; drop --resume to start over")
             if state.get("key") != key:
-                diff = sorted(k for k in key if state.get("key", {}).get(k) != key[k])
+                old = state["key"] if isinstance(state.get("key"), dict) else {}
+                diff = sorted(k for k in key if old.get(k) != key[k])
                 raise BuildError(f"--resume: the checkpoint in {self.dir} was made with a different "
                                  f"{', '.join(diff) or 'state version'}; drop --resume to start over")
             self.done = state["done"]
