@@ -30,7 +30,10 @@ _LAZY = {
               "write_camera_path", "synthetic_poses"],
     "utility": ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
                 "build_utility_table", "grid_positions"],
-    "bench": ["BenchTask", "run_bench", "read_records"],
+    "bench": ["BenchError", "BenchTask", "run_bench", "read_records"],
+    # One strict JSON serialiser and one JSONL record writer for every output (issue 19).
+    "jsonout": ["OutputError", "JsonOutputError"],
+    "records": ["RecordFileError", "OutputLockedError", "RecordLog"],
     "report": ["write_report"],
     "suites": ["InstanceSpec", "suite_specs"],
     "scene_io": ["SceneError", "SplatScene", "read_ply", "write_ply"],

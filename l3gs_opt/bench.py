@@ -259,26 +259,50 @@ def _cross_check(record: dict[str, Any], state: _InstanceState) -> None:
         record["rel_error"] = None
 
 
-#: Keys every bench record has (what ``report`` and the cross-checks read without a default).
-RECORD_KEYS = ("record_id", "suite", "instance_id", "method", "status")
+#: Keys every bench record has and their types (what ``report`` and the cross-checks read without a default).
+RECORD_KEYS = {"record_id": str, "suite": str, "instance_id": str, "method": str, "status": str, "J": int, "T": int,
+               "L": int}
+#: Keys a record may lack or hold as null; numbers when present.
+RECORD_NUMBERS = ("objective", "bound", "runtime_s", "loadavg_1m", "time_limit_s", "recomputed_objective")
+#: Keys a record may lack or hold as null; true or false when present.
+RECORD_FLAGS = ("feasible", "objective_ok", "bound_only")
+
+
+def _record_fault(rec: Mapping[str, Any]) -> str | None:
+    """What makes ``rec`` no bench record, or None."""
+    schema = rec.get("schema")
+    if schema is not None and schema != RECORD_SCHEMA:
+        return f"schema {schema!r}"
+    missing = [k for k, kind in RECORD_KEYS.items() if not isinstance(rec.get(k), kind) or isinstance(rec[k], bool)]
+    if missing:
+        return f"no {', '.join(f'{k} ({RECORD_KEYS[k].__name__})' for k in missing)}"
+    for k in RECORD_NUMBERS:
+        v = rec.get(k)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+            return f"{k} = {v!r} is not a number or null"
+    for k in RECORD_FLAGS:
+        if rec.get(k) not in (None, True, False):
+            return f"{k} = {rec[k]!r} is not true, false or null"
+    flags = rec.get("flags", [])
+    if not isinstance(flags, list) or not all(isinstance(f, str) for f in flags):
+        return f"flags = {flags!r} is not a list of text"
+    return None
 
 
 def check_records(records: list[dict[str, Any]], *, field: str = "records") -> list[dict[str, Any]]:
-    """``records`` if each is a bench record (:data:`RECORD_SCHEMA`, or the keys of one).
+    """``records`` if each is a bench record (:data:`RECORD_SCHEMA`: the keys and types ``report``
+    reads).
 
     Raises
     ------
     BenchError
-        A record of another kind (e.g. ``simulate``'s or ``experiments``' records): ``index`` is its
-        position (0-based).
+        A record of another kind (e.g. ``simulate``'s or ``experiments``' records) or with a value
+        of the wrong type: ``index`` is its position (0-based).
     """
     for i, rec in enumerate(records):
-        missing = [k for k in RECORD_KEYS if not isinstance(rec.get(k), str)]
-        schema = rec.get("schema")
-        if missing or (schema is not None and schema != RECORD_SCHEMA):
-            what = f"schema {schema!r}" if schema is not None and schema != RECORD_SCHEMA else \
-                f"no text {', '.join(repr(k) for k in missing)}"
-            raise BenchError(field, f"not a bench record ({what}; expected {RECORD_SCHEMA} records from "
+        fault = _record_fault(rec)
+        if fault:
+            raise BenchError(field, f"not a bench record ({fault}; expected {RECORD_SCHEMA} records from "
                                     "l3gs-opt bench or compare)", i)
     return records
 

@@ -191,8 +191,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     single = args.slot is not None or inst.T == 1
     spec = InstanceSpec("compare", Path(args.instance).stem, "file",
                         {"path": str(Path(args.instance).resolve()), "slot": args.slot}, single)
-    methods = _csv(args.methods) or default_methods(spec)
-    _check_methods(methods)
+    methods = _csv(args.methods)
+    _check_methods(methods)   # before the default: "--methods ," is an error, not every method
+    methods = methods or default_methods(spec)
     out = Path(args.out)
     path = out / "compare.jsonl"
     run_bench([BenchTask(spec, m) for m in methods], path, time_limit_s=time_limit, jobs=1,

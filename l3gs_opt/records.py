@@ -59,14 +59,15 @@ def _note_to_stderr(text: str) -> None:
 
 def _check_file_path(path: Path, field: str) -> None:
     """Refuse a record path that is a folder or not a regular file, or whose folder is a file."""
+    it = "" if field == str(path) else f"{path} "   # the field names the path already
     if path.is_dir():
-        raise RecordFileError(field, f"{path} is a folder, expected a records file")
+        raise RecordFileError(field, f"{it}is a folder, expected a records file")
     if path.exists() and not path.is_file():
-        raise RecordFileError(field, f"{path} is not a regular file (a FIFO, socket or device is refused)")
+        raise RecordFileError(field, f"{it}is not a regular file (a FIFO, socket or device is refused)")
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
-                raise RecordFileError(field, f"{parent} is a file, expected a folder for {path.name}")
+                raise RecordFileError(field, f"its folder {parent} is a file")
             break
 
 
@@ -83,10 +84,15 @@ def prepare_path(path: str | os.PathLike[str], *, field: str | None = None) -> P
     return path
 
 
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not JSON (records hold null for a number without a finite value)")
+
+
 def _parse(line: bytes) -> Any:
+    """The JSON value of one line, or the exception that says why it is none (strict: no NaN)."""
     try:
-        return json.loads(line.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        return json.loads(line.decode("utf-8"), parse_constant=_refuse_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         return exc
 
 

@@ -263,7 +263,7 @@ def test_item8_bench_out_on_a_file(tmp_path, capsys):
     task = BenchTask(suite_specs("stiff")[0], "greedy")
     with pytest.raises(RecordFileError, match="is a folder"):
         run_bench([task], tmp_path, jobs=0, progress=False)
-    with pytest.raises(RecordFileError, match="is a file, expected a folder"):
+    with pytest.raises(RecordFileError, match=r"results\.jsonl: its folder .*taken\.txt is a file"):
         run_bench([task], afile / "results.jsonl", jobs=0, progress=False)
 
 
@@ -473,3 +473,54 @@ def test_item5_experiments_refuse_a_second_writer(tmp_path, capsys):
     finally:
         lock.release()
     assert not (tmp_path / "runs.jsonl").exists() and not (tmp_path / "plan.json").exists()
+
+
+def test_item9_compare_methods_empty_is_an_error(tmp_path, capsys):
+    path = l3gs_opt.save_instance(synth_instance(objects=3, layers=2, slots=2, seed=0), tmp_path / "i.json")
+    code, _, err = run_cli(capsys, "compare", path, "--methods", ",", "--out", tmp_path / "c", "--no-progress")
+    assert code == 2 and one_error_line(err).startswith("error: --methods: names no method")
+    assert not (tmp_path / "c" / "compare.jsonl").exists()
+
+
+def _bench_record() -> dict:
+    return {"schema": "l3gs-opt/bench-record@1", "record_id": "stiff/i/bb", "suite": "stiff", "instance_id": "i",
+            "method": "bb", "status": "optimal", "J": 3, "T": 1, "L": 2, "problem": "MCKP", "objective": 5.0,
+            "bound": 5.0, "runtime_s": 0.01, "feasible": True, "objective_ok": True, "flags": [],
+            "bound_only": False, "loadavg_1m": 1.0}
+
+
+_JSON_VALUES = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(-10, 10),
+                                      st.text(max_size=3)),
+                            lambda inner: st.one_of(st.lists(inner, max_size=2),
+                                                    st.dictionaries(st.text(max_size=2), inner, max_size=2)),
+                            max_leaves=4)
+
+
+@settings(max_examples=150, deadline=None)
+@given(key=st.sampled_from(sorted(_bench_record()) + ["extra"]), value=_JSON_VALUES, drop=st.booleans())
+def test_item8_report_on_altered_records_is_a_report_or_a_named_error(key, value, drop):
+    """A bench record with one value replaced (or removed): the report's summary, or BenchError."""
+    from l3gs_opt.bench import BenchError, check_records
+    from l3gs_opt.report import annotate, summarise
+
+    good = _bench_record()
+    other = dict(good, record_id="stiff/i/greedy", method="greedy", status="feasible", objective=4.0, bound=None)
+    bad = dict(good)
+    if drop:
+        bad.pop(key, None)
+    else:
+        bad[key] = value
+    try:
+        records = check_records([other, bad])
+    except BenchError as exc:
+        assert str(exc).startswith("records[1]: not a bench record (")
+        return
+    summary = summarise(annotate(records))
+    assert sum(s["records"] for methods in summary.values() for s in methods.values()) == 2
+
+
+def test_item8_report_refuses_nan_in_a_records_file(tmp_path, capsys):
+    path = tmp_path / "r.jsonl"
+    path.write_text(json.dumps(_bench_record()).replace("5.0", "NaN", 1) + "\n" + json.dumps(_bench_record()) + "\n")
+    code, _, err = run_cli(capsys, "report", path, "--out", tmp_path / "rep")
+    assert code == 2 and re.search(r"r\.jsonl\[1\]: line 1 is not a JSON record: NaN is not JSON", one_error_line(err))
