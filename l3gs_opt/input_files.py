@@ -17,6 +17,7 @@ import json
 import os
 import stat
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -25,7 +26,7 @@ import numpy as np
 from .errors import L3gsError
 
 __all__ = ["MAX_TEXT_BYTES", "MAX_JSON_DEPTH", "MAX_NPZ_BYTES", "MAX_BINARY_BYTES", "ErrorFactory",
-           "check_regular_file", "read_text", "read_bytes", "parse_json", "read_json", "load_npz"]
+           "check_regular_file", "read_text", "read_bytes", "parse_json", "read_json", "load_npz", "key_name"]
 
 #: Largest JSON or text file read (bytes). A JSON instance this size already takes ~10x that in
 #: Python objects while it is parsed; larger problems belong in NPZ.
@@ -88,6 +89,17 @@ def read_text(path: str | os.PathLike[str], error: ErrorFactory, *, field: str =
         raise error(field, f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
+def key_name(key: Any) -> str:
+    """A key of the user's file as a field name in a message: itself when it is a short printable
+    string without surrounding spaces, else its (shortened) ``repr``, so that an empty key, a
+    newline or a megabyte-long key still gives one readable line."""
+    text = str(key)
+    if text and text.isprintable() and text.strip() == text and len(text) <= 40:
+        return text
+    text = repr(key)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def _depth_exceeded(value: Any, limit: int) -> bool:
     stack = [(value, 1)]
     while stack:
@@ -113,7 +125,7 @@ def parse_json(text: str | bytes, error: ErrorFactory, *, field: str = "file", w
         out: dict[str, Any] = {}
         for key, value in items:
             if key in out:
-                raise error(key, f"{prefix}duplicate key (each key may appear once)")
+                raise error(key_name(key), f"{prefix}duplicate key (each key may appear once)")
             out[key] = value
         return out
 
@@ -160,28 +172,39 @@ def load_npz(path: str | os.PathLike[str], error: ErrorFactory, *, field: str = 
                 if not info.filename.endswith(".npy"):
                     raise error(field, f"{path}: member {info.filename!r} is not a .npy array")
                 key = info.filename[:-4]
+                name = key_name(key)
+                if key in arrays:   # as for JSON keys: the last one must not silently win
+                    raise error(name, f"{path}: member {info.filename!r} appears twice")
                 with zf.open(info) as fh:
-                    version = np.lib.format.read_magic(fh)
-                    if version == (1, 0):
-                        shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
-                    else:
-                        shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+                    try:
+                        version = np.lib.format.read_magic(fh)
+                        if version == (1, 0):
+                            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+                        else:
+                            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+                    except Exception as exc:  # noqa: BLE001 - numpy's header parser lets its tokenizer's
+                        # errors through (SyntaxError, tokenize.TokenError, ...): all mean a damaged header
+                        raise error(name, f"{path}: member {info.filename!r} has no readable .npy header "
+                                          f"({type(exc).__name__}: {exc})") from None
                     if dtype.hasobject:
-                        raise error(key, f"{path}: object arrays are refused (no pickles)")
+                        raise error(name, f"{path}: object arrays are refused (no pickles)")
                     count = 1
                     for n in shape:
                         count *= int(n)
                     total += count * dtype.itemsize
                     if total > max_bytes:
-                        raise error(key, f"{path}: header claims shape {tuple(shape)} of {dtype}, more "
-                                         f"than the limit of {max_bytes:,} bytes in all")
+                        raise error(name, f"{path}: header claims shape {tuple(shape)} of {dtype}, more than the "
+                                          f"limit of {max_bytes:,} bytes in all")
                     if count * dtype.itemsize > info.file_size:
-                        raise error(key, f"{path}: header claims shape {tuple(shape)} but the member "
-                                         f"holds only {info.file_size:,} bytes")
+                        raise error(name, f"{path}: header claims shape {tuple(shape)} but the member holds only "
+                                          f"{info.file_size:,} bytes")
                     fh.seek(0)
                     arrays[key] = np.lib.format.read_array(fh, allow_pickle=False)
     except L3gsError:
         raise
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError, OSError) as exc:
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, NotImplementedError, RuntimeError, ValueError,
+            EOFError, OSError) as exc:
+        # zlib.error: a corrupt deflate stream; NotImplementedError: an unsupported compression
+        # method; RuntimeError: an encrypted member (zipfile's own errors for a damaged file).
         raise error(field, f"{path}: not a readable NPZ file ({exc})") from None
     return arrays

@@ -25,7 +25,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import InstanceError
-from .input_files import MAX_JSON_DEPTH, parse_json
+from .input_files import MAX_JSON_DEPTH, key_name, parse_json
 
 __all__ = [
     "SCHEMA",
@@ -86,7 +86,7 @@ class Options:
         known = {"availability", "same_slot_layers", "budget"}
         for key in data:
             if key not in known:
-                raise InstanceError(f"options.{key}", f"unknown option (known: {', '.join(sorted(known))})")
+                raise InstanceError(f"options.{key_name(key)}", f"unknown option (known: {', '.join(sorted(known))})")
         return cls(**dict(data))
 
     def to_dict(self) -> dict[str, Any]:

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .errors import InstanceError
-from .input_files import load_npz, parse_json, read_json
+from .input_files import key_name, load_npz, parse_json, read_json
 from .instance import SCHEMA, Instance, Options
 
 __all__ = ["MAX_JSON_BYTES", "MAX_NPZ_BYTES", "instance_from_dict", "instance_from_raw", "load_instance",
@@ -117,7 +117,7 @@ def check_head(data: Mapping[str, Any], keys: tuple[str, ...], required: tuple[s
     ``null``: an optional key is either left out (its default) or given a value of its type."""
     for key in data:
         if key not in keys:
-            raise error(str(key), f"unknown key (known: {', '.join(keys)})")
+            raise error(key_name(key), f"unknown key (known: {', '.join(keys)})")
     for key in required:
         if key not in data:
             raise error(key, "missing")
@@ -163,7 +163,7 @@ def npz_fields(npz: Mapping[str, np.ndarray], keys: tuple[str, ...], dims: Mappi
     out: dict[str, Any] = {}
     for key in npz:
         if key not in keys:
-            raise error(key, f"unknown key (known: {', '.join(keys)})")
+            raise error(key_name(key), f"unknown key (known: {', '.join(keys)})")
         arr = npz[key]
         if key in dims:
             if arr.size and arr.dtype.kind not in "biuf":

@@ -84,8 +84,8 @@ def synth_instance(*, objects: int = 20, layers: int = 4, slots: int = 60, seed:
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
             raise InstanceError(name, f"= {value!r}: must be an integer >= {low}")
     if objects * layers * slots > MAX_SYNTH_ENTRIES:
-        raise InstanceError("objects", f"objects x layers x slots = {objects} x {layers} x {slots} utilities, more than "
-                                       f"the limit of {MAX_SYNTH_ENTRIES:,} for a synthetic instance")
+        raise InstanceError("objects", f"objects x layers x slots = {objects} x {layers} x {slots} utilities, more "
+                                       f"than the limit of {MAX_SYNTH_ENTRIES:,} for a synthetic instance")
     rng = np.random.default_rng(seed)
     raw = read_bandwidth_trace(trace)
     scaled, factor = raw.scaled(mbps) if mbps is not None else (raw, 1.0)
