@@ -181,12 +181,17 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_compare(args: argparse.Namespace) -> int:
     from .api import check_slot, check_time_limit
     from .bench import BenchTask, read_records, run_bench
-    from .instance_io import load_instance
+    from .errors import SolveError
+    from .items import ItemInstance
+    from .items_io import load_problem
     from .report import annotate, write_report
     from .suites import InstanceSpec, default_methods
 
     time_limit = check_time_limit(args.time_limit, name="--time-limit")
-    inst = load_instance(args.instance)  # fail early, with the instance's own error
+    inst = load_problem(args.instance)  # fail early, with the instance's own error
+    if isinstance(inst, ItemInstance):
+        raise SolveError(f"instance: {args.instance} is an item instance (l3gs-opt/items@1); compare runs "
+                         "l3gs-opt/instance@1 files (run 'l3gs-opt solve --method M' per method)")
     check_slot(args.slot, inst.T, name="--slot")   # here, not in a worker (its traceback would print first)
     single = args.slot is not None or inst.T == 1
     spec = InstanceSpec("compare", Path(args.instance).stem, "file",

@@ -162,6 +162,9 @@ def test_item6_item8_compare_slot_checked_before_workers(capsys, files, tmp_path
         assert "must be an integer in 0..2" in err
     assert not (tmp_path / "c" / "compare.jsonl").exists()
     one_line_error(capsys, "solve", files["json"], "--method", "bb", "--slot", "-1", field="--slot")
+    # An item file was blamed for its first item key ("object: unknown key"): say what it is.
+    err = one_line_error(capsys, "compare", files["items"], "--out", tmp_path / "c", field="instance")
+    assert "is an item instance" in err
     one_line_error(capsys, "solve", files["items"], "--method", "bb", "--slot", "2", field="--slot")
 
 
