@@ -8,9 +8,9 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from .errors import SolveError
-from .instance import Instance
+from .instance import Instance, scale_exponent
 from .items import ItemInstance
-from .solution import Solution
+from .solution import Solution, finish_solution
 
 __all__ = ["METHODS", "method_names", "solve", "check_time_limit", "check_slot"]
 
@@ -116,6 +116,38 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
     """
     time_limit_s = check_time_limit(time_limit_s)
     slot = check_slot(slot, instance.T) if isinstance(instance, (Instance, ItemInstance)) else slot
+    if isinstance(instance, (Instance, ItemInstance)):
+        exponent = scale_exponent(instance.utility, UTILITY_TOP)
+        if not -UTILITY_BAND <= exponent <= UTILITY_BAND:
+            return _solve_scaled(instance, exponent, method, backend=backend, form=form, slot=slot,
+                                 time_limit_s=time_limit_s, presolve=presolve, options=options)
+    return _dispatch(instance, method, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
+                     presolve=presolve, options=options)
+
+
+#: Utilities are solved as they are while the largest lies within 2**(UTILITY_TOP +- UTILITY_BAND)
+#: (about 1e-6 .. 1e18); beyond, on a copy scaled by a power of two (see :func:`_solve_scaled`).
+UTILITY_TOP = 20
+UTILITY_BAND = 40
+
+
+def _solve_scaled(instance: Instance | ItemInstance, exponent: int, method: str, **kw: Any) -> Solution:
+    """Solve ``instance`` with its utilities times ``2**exponent``, then check and value the schedule
+    on the original. Solvers' tolerances and bound slacks are partly absolute (HiGHS treats a cost
+    of 1e20 as infinite; ``bb``'s pruning floor is 1e-300): near 1e300 or among subnormal utilities
+    they misjudge. Scaling by a power of two is exact while values stay normal, so the scaled
+    optimum is the original one; the bound is scaled back with ``ldexp``."""
+    scaled = _dispatch(instance.replace(utility=np.ldexp(instance.utility, exponent)), method, **kw)
+    bound = None if scaled.bound is None else math.ldexp(scaled.bound, -exponent)
+    return finish_solution(instance, scaled.arrivals, problem=scaled.problem, method=scaled.method,
+                           status=scaled.status, bound=bound, runtime_s=scaled.runtime_s, slot=scaled.slot,
+                           backend=scaled.backend, backend_version=scaled.backend_version,
+                           size_before=scaled.size_before, size_after=scaled.size_after, message=scaled.message,
+                           details={**scaled.details, "utility_prescale_log2": exponent})
+
+
+def _dispatch(instance: Instance | ItemInstance, method: str, *, backend: str, form: str, slot: int | None,
+              time_limit_s: float | None, presolve: bool, options: Mapping[str, Any] | None) -> Solution:
     if isinstance(instance, ItemInstance):
         from l3gs_opt.solvers.items import solve_items
 

@@ -51,13 +51,12 @@ def save_image(image, path) -> Path:
 
 
 def _parse_rgb(text: str):
+    """``r,g,b`` as three floats; anything else is passed on as given, for the camera's own check to
+    name it in one error line (``background: ... must be 3 numbers in [0, 1]``)."""
     try:
-        vals = [float(v) for v in text.split(",")]
+        return [float(v) for v in text.split(",")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected r,g,b") from None
-    if len(vals) != 3:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected three numbers r,g,b")
-    return vals
+        return text
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
@@ -91,17 +90,17 @@ def _cmd_scene_make(args: argparse.Namespace) -> int:
     from .scene_io import write_ply
     from .scene_make import make_scene
 
+    bg = args.background if args.background is not None else (0.0, 0.0, 0.0)
+    kw = dict(width=args.width, height=args.height, fov_x_deg=args.fov, background=bg)
+    # the camera paths first: a bad size or background fails before any file is written
+    paths = [(kind, make(args.views, **kw), out) for kind, make, out in (("orbit", orbit_path, args.orbit),
+                                                                         ("walk", walk_path, args.walk)) if out]
     scene = make_scene(args.splats, objects=args.objects, sh_degree=args.sh_degree, seed=args.seed)
     path = write_ply(scene, args.out)
     print(f"wrote {path}: {scene!r}, {path.stat().st_size} bytes")
-    bg = args.background if args.background is not None else (0.0, 0.0, 0.0)
-    kw = dict(width=args.width, height=args.height, fov_x_deg=args.fov, background=bg)
-    if args.orbit:
-        p = save_cameras(orbit_path(args.views, **kw), args.orbit)
-        print(f"wrote {p}: orbit path, {args.views} cameras {args.width}x{args.height}")
-    if args.walk:
-        p = save_cameras(walk_path(args.views, **kw), args.walk)
-        print(f"wrote {p}: walk path, {args.views} cameras {args.width}x{args.height}")
+    for kind, cams, out in paths:
+        p = save_cameras(cams, out)
+        print(f"wrote {p}: {kind} path, {args.views} cameras {args.width}x{args.height}")
     return 0
 
 

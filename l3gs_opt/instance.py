@@ -30,6 +30,7 @@ from .input_files import MAX_JSON_DEPTH, key_name, parse_json
 __all__ = [
     "SCHEMA",
     "MAX_BYTES",
+    "MAX_UTILITY_TOTAL",
     "REPRESENTATIONS",
     "Options",
     "Instance",
@@ -39,6 +40,10 @@ SCHEMA = "l3gs-opt/instance@1"
 #: Largest byte count accepted (2**53): every byte count and budget is then exact in float64,
 #: which the LP/MIP backends use for their rows.
 MAX_BYTES = 2**53
+#: Largest sum of all utilities of an instance. Every objective, bound and gap is then a finite
+#: float64 with room to spare (1e300 is 2**-27 of the largest float), whatever the slots add up;
+#: single utilities down to the smallest subnormal (5e-324) are accepted and solved.
+MAX_UTILITY_TOTAL = 1e300
 REPRESENTATIONS = ("layered", "separate")
 _AVAILABILITY = ("same_slot", "next_slot")
 _BUDGET = ("per_slot", "cumulative")
@@ -136,6 +141,17 @@ def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count:
     return float(slot_s), options, names, types.MappingProxyType(meta)
 
 
+def scale_exponent(values: np.ndarray, top: int) -> int:
+    """``k`` such that ``np.ldexp(values, k)`` has its largest ``|value|`` in ``[2**(top-1), 2**top)``
+    (0 when all are zero). Multiplying by ``2**k`` is exact in float64 for every value that stays
+    a normal number (subnormal utilities scaled up included), so an optimum of the scaled values
+    is an optimum of the originals times ``2**k``. Used to bring utilities from 5e-324 to 1e300
+    into the range solvers' absolute tolerances assume; ``ldexp`` because ``2**k`` itself
+    overflows for ``k`` near 1,074."""
+    largest = float(np.abs(values).max()) if np.size(values) else 0.0
+    return top - math.frexp(largest)[1] if largest > 0 else 0
+
+
 def _first_index(mask: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(mask)[0])
 
@@ -176,15 +192,27 @@ def _utility_array(value: Any) -> np.ndarray:
         raise InstanceError("utility", f"must be a 3-dimensional array (T, J, L), got {arr.ndim} dimensions")
     if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
         raise InstanceError("utility", f"must hold numbers, got dtype {arr.dtype}")
+    return checked_utility_values(arr, InstanceError)
+
+
+def checked_utility_values(arr: np.ndarray, error: type[InstanceError]) -> np.ndarray:
+    """``arr`` as a read-only float64 array of utilities: each finite and >= 0 (subnormals
+    included), and all of them together at most :data:`MAX_UTILITY_TOTAL`, so that no schedule's
+    objective, bound or gap can overflow float64. Faults are ``error("utility", ...)``."""
     out = arr.astype(np.float64)
     bad = ~np.isfinite(out)
     if bad.any():
         idx = _first_index(bad)
-        raise InstanceError("utility", f"= {_show(out[idx])}: must be finite", idx)
+        raise error("utility", f"= {_show(out[idx])}: must be finite", idx)
     neg = out < 0
     if neg.any():
         idx = _first_index(neg)
-        raise InstanceError("utility", f"= {_show(out[idx])}: must be >= 0", idx)
+        raise error("utility", f"= {_show(out[idx])}: must be >= 0", idx)
+    with np.errstate(over="ignore"):
+        total = float(out.sum())
+    if not total <= MAX_UTILITY_TOTAL:
+        raise error("utility", f"sums to {total:.3g}: all utilities together must be at most {MAX_UTILITY_TOTAL:g} "
+                               "(an objective summed over slots must stay a finite float64); scale them down")
     out.setflags(write=False)
     return out
 

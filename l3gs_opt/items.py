@@ -37,7 +37,7 @@ import numpy as np
 
 from .errors import InstanceError
 from .instance import SCHEMA as INSTANCE_SCHEMA
-from .instance import Instance, Options, _byte_array, _first_index, _show, validated_common
+from .instance import Instance, Options, _byte_array, _first_index, _show, checked_utility_values, validated_common
 
 __all__ = [
     "ITEMS_SCHEMA",
@@ -97,17 +97,7 @@ def _utility_matrix(value: Any, T: int, N: int) -> np.ndarray:
         raise ItemInstanceError("utility", f"has shape {arr.shape}, expected (T, N) = {(T, N)} from bandwidth and cost")
     if arr.size and (arr.dtype.kind == "b" or arr.dtype.kind not in "iuf"):
         raise ItemInstanceError("utility", f"must hold numbers, got dtype {arr.dtype}")
-    out = arr.astype(np.float64)
-    bad = ~np.isfinite(out)
-    if bad.any():
-        idx = _first_index(bad)
-        raise ItemInstanceError("utility", f"= {_show(out[idx])}: must be finite", idx)
-    neg = out < 0
-    if neg.any():
-        idx = _first_index(neg)
-        raise ItemInstanceError("utility", f"= {_show(out[idx])}: must be >= 0", idx)
-    out.setflags(write=False)
-    return out
+    return checked_utility_values(arr, ItemInstanceError)
 
 
 def _edges(value: Any, N: int, objects: np.ndarray) -> np.ndarray:

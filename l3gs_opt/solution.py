@@ -171,8 +171,9 @@ def finish_solution(
 
     ``status`` is the method's own claim. It is downgraded when the schedule had to be
     repaired (to ``FEASIBLE``) or when a claimed optimum is further than ``GAP_TOL`` from the
-    bound (to ``FEASIBLE``). A bound below the re-evaluated objective (backend round-off) is
-    raised to it.
+    bound (to ``FEASIBLE``). A bound below the re-evaluated objective by at most ``GAP_TOL``
+    (backend round-off) is raised to it; one further below is wrong and dropped (``None``, so an
+    optimum claimed on it is reported ``FEASIBLE``); an infinite bound is no bound.
     """
     normalize, violations_of, repair, evaluate, unit = _schedule_rules(instance)
     notes = [message] if message else []
@@ -185,7 +186,13 @@ def finish_solution(
         if status is Status.OPTIMAL:
             status = Status.FEASIBLE
     objective = evaluate(instance, schedule, slot=slot)
-    if bound is not None and math.isfinite(bound) and bound < objective:
+    if bound is not None and not math.isfinite(bound):
+        bound = None
+    if bound is not None and bound < objective - GAP_TOL * max(1.0, abs(objective)):
+        # Not round-off: the method's bound is wrong, and nothing it proved can be trusted.
+        notes.append(f"the reported bound {bound!r} is below this schedule's value {objective!r}: dropped")
+        bound = None
+    elif bound is not None and bound < objective:
         bound = objective
     gap = relative_gap(objective, bound)
     if status is Status.OPTIMAL and (gap is None or gap > GAP_TOL):

@@ -8,7 +8,8 @@ another machine, rebuilds the very same instance from it. Suites:
 * ``pisinger``: MCKP classes after Pisinger (uncorrelated, weakly, strongly and inverse strongly
   correlated), as single-slot separate-version instances (choose at most one item per class);
 * ``stiff``: utilities over 18 orders of magnitude, costs over 7, ties, zero and huge bandwidth,
-  one object, one layer, all held, chunks that never fit, near-equal efficiencies;
+  one object, one layer, all held, chunks that never fit, near-equal efficiencies, utilities near
+  the 1e300 total limit and subnormal ones, 1-byte chunks beside 10^12- and 2^53-byte budgets;
 * ``problems``: Problems I-IV and the GAP form over T slots, exact ILP against the schedulers.
 """
 
@@ -21,7 +22,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .errors import SolveError
-from .instance import Instance
+from .instance import MAX_UTILITY_TOTAL, Instance
 from .synth import synth_instance
 from .traces import bundled_traces, mbps_to_bytes
 
@@ -123,6 +124,18 @@ def _stiff(*, case: str, seed: int = 0, slots: int = 1) -> Instance:
         held = np.ones((J, L), dtype=bool)
     elif case == "never_fit":
         cost[:, 1] = int(bandwidth.max()) + 1
+    elif case == "utility_near_limit":
+        # All utilities together 0.9 x MAX_UTILITY_TOTAL: objectives near 1e300 must not overflow.
+        utility = utility / utility.sum() * 0.9 * MAX_UTILITY_TOTAL
+    elif case == "utility_subnormal":
+        # Subnormal utilities (multiples of 5e-324 up to ~1e-308): scaling them up must be exact.
+        utility = np.where(utility < 0.5, rng.integers(1, 1000, size=utility.shape) * 5e-324, utility * 1e-308)
+    elif case in ("bytes_1e12", "bytes_2_53"):
+        # One-byte chunks beside chunks a few bytes short of the budget: float tolerances of
+        # 1e-9 relative would let the one-byte chunks ride along for free.
+        big = 10**12 if case == "bytes_1e12" else 2**53
+        cost = np.where(rng.random((J, L)) < 0.5, rng.integers(1, 4, size=(J, L)), big - rng.integers(0, 5, size=(J, L)))
+        bandwidth = np.full(T, big)
     elif case == "near_equal_efficiency":
         utility = np.broadcast_to(cost * (1 + 1e-12 * rng.random((J, L))), (T, J, L)).copy()
     else:
@@ -152,7 +165,8 @@ def _file(*, path: str, slot: int | None = None) -> Instance:
 _GENERATORS: dict[str, Callable[..., Instance]] = {"l3gs_slot": _l3gs_slot, "pisinger": _pisinger,
                                                    "stiff": _stiff, "problem": _problem, "file": _file}
 STIFF_CASES = ("utility_18_orders", "cost_7_orders", "ties", "zero_bandwidth", "huge_bandwidth", "one_object",
-               "one_layer", "all_held", "never_fit", "near_equal_efficiency")
+               "one_layer", "all_held", "never_fit", "near_equal_efficiency", "utility_near_limit",
+               "utility_subnormal", "bytes_1e12", "bytes_2_53")
 PISINGER_CLASSES = ("uncorrelated", "weakly", "strongly", "inverse_strongly")
 
 

@@ -7,7 +7,7 @@ import numpy as np
 from l3gs_opt.instance import Instance
 from l3gs_opt.presolve import Reduction
 
-from .linear import ModelBuilder, index_name
+from .linear import BYTE_SPLIT_ABOVE, ModelBuilder, index_name
 
 Key = tuple[int, int, int]
 
@@ -46,13 +46,22 @@ def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redun
     if inst.options.budget == "per_slot":
         for t in range(inst.T):
             keys = by_slot.get(t, [])
-            costs = [float(inst.cost[j, l]) for j, l, _ in keys]
+            costs = [int(inst.cost[j, l]) for j, l, _ in keys]
             if drop_redundant and sum(costs) <= bandwidth[t]:
                 continue
-            b.row(f"budget[{t}]", [x[k] for k in keys], costs, ub=float(bandwidth[t]))
+            b.byte_row(f"budget[{t}]", [x[k] for k in keys], costs, bandwidth[t])
         return
     slots = sorted(by_slot) if drop_redundant else list(range(inst.T))
     if drop_redundant and slots and _cumulative_redundant(inst, x, slots, bandwidth):
+        return
+    if max(sum(bandwidth), int(inst.cost.max(initial=0))) > BYTE_SPLIT_ABOVE:
+        # The carry r[t] would run to the total bandwidth in a continuous column: beyond 2**31
+        # bytes, prefix rows "arrivals up to t cost at most the bandwidth up to t" over the
+        # binary x go through byte_row's exact digits instead.
+        for t in slots:
+            keys = [k for s in slots if s <= t for k in by_slot.get(s, [])]
+            b.byte_row(f"cumulative[{t}]", [x[k] for k in keys], [int(inst.cost[j, l]) for j, l, _ in keys],
+                       sum(bandwidth[:t + 1]))
         return
     prev_r, prev_t = None, -1
     for t in slots:

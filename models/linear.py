@@ -15,7 +15,18 @@ import scipy.sparse as sp
 
 from l3gs_opt.solution import ModelSize
 
-__all__ = ["LinearModel", "ModelBuilder"]
+__all__ = ["LinearModel", "ModelBuilder", "BYTE_SPLIT_ABOVE", "BYTE_DIGIT"]
+
+#: A byte row whose budget or largest cost exceeds this many bytes is written in base
+#: :data:`BYTE_DIGIT` (see :meth:`ModelBuilder.byte_row`). Float backends compare row activities
+#: against tolerances relative to the row's largest coefficient (CBC ~1e-7, HiGHS 1e-9 after its
+#: own scaling): at 10^12 bytes a 1-byte overflow passes as feasible and a 1-byte chunk as free
+#: (CBC then called such instances infeasible, HiGHS returned no answer at 2^53). Below 2^31 the
+#: digits would only grow the model; the exact-bytes check after every solve catches the rest.
+BYTE_SPLIT_ABOVE = 2**31
+#: Base of the digit rows: every coefficient of a split row is at most 2**10, so a tolerance of
+#: 1e-6 on a carry or relative to a coefficient is a thousandth of a byte.
+BYTE_DIGIT = 2**10
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,6 +50,8 @@ class LinearModel:
         unspent-bytes carry ``r``): a backend that needs integers (CP-SAT) may declare them so.
     slot : int or None
         The slot of a single-slot model.
+    byte_digits : bool
+        Some byte row is written in base-:data:`BYTE_DIGIT` digits (:meth:`ModelBuilder.byte_row`).
     """
 
     problem: str
@@ -56,6 +69,7 @@ class LinearModel:
     integral_ok: np.ndarray | None = None
     slot: int | None = None
     stats: dict = field(default_factory=dict)
+    byte_digits: bool = False
 
     @property
     def size(self) -> ModelSize:
@@ -91,6 +105,7 @@ class ModelBuilder:
         self._row_names: list[str] = []
         self.decode: list[tuple[int, tuple[tuple[int, int, int], ...]]] = []
         self.constant = 0.0
+        self.byte_digits = False
 
     def var(self, name: str, *, obj: float = 0.0, lb: float = 0.0, ub: float = 1.0, integer: bool = True,
             integral_ok: bool = False) -> int:
@@ -113,6 +128,47 @@ class ModelBuilder:
         self._row_names.append(name)
         return index
 
+    def byte_row(self, name: str, cols: Sequence[int], costs: Sequence[int], budget: int) -> None:
+        """``sum costs[i] * x[cols[i]] <= budget`` in exact integer bytes, over binary columns.
+
+        Up to :data:`BYTE_SPLIT_ABOVE` bytes this is one row. Above it, the row is written in base
+        ``M`` = :data:`BYTE_DIGIT` with an integer slack ``s = budget - sum c x >= 0`` held as
+        digits ``s_d`` in ``0..M-1`` and integer carries ``k_d``: digit ``d`` of the sum plus
+        ``s_d`` plus the carry in equals digit ``d`` of the budget plus ``M`` times the carry out,
+        and the top digit carries nothing out. Every feasible ``x`` has exactly one such
+        completion (the digits of its slack) and every completion gives ``sum c x + s = budget``
+        with ``s >= 0``, so the model is unchanged, while no coefficient exceeds ``M``.
+        """
+        costs = [int(c) for c in costs]
+        budget = int(budget)
+        if max([budget, *costs]) <= BYTE_SPLIT_ABOVE:
+            self.row(name, cols, [float(c) for c in costs], ub=float(budget))
+            return
+        self.byte_digits = True
+        M = BYTE_DIGIT
+        digits = 1
+        while M ** digits <= max(budget, sum(costs)):
+            digits += 1
+        carry, carry_max = None, 0
+        for d in range(digits):
+            part = [(c // M ** d) % M for c in costs]
+            keep = [(col, float(v)) for col, v in zip(cols, part) if v]
+            s_d = self.var(f"{name}.s{d}", ub=float(M - 1))
+            row_cols = [col for col, _ in keep] + [s_d]
+            row_vals = [v for _, v in keep] + [1.0]
+            if carry is not None:
+                row_cols.append(carry)
+                row_vals.append(1.0)
+            b_d = (budget // M ** d) % M
+            if d < digits - 1:
+                # Largest carry out: (largest digit sum + M - 1 + largest carry in - b_d) / M.
+                carry_max = (sum(part) + M - 1 + carry_max - b_d) // M
+                out = self.var(f"{name}.k{d + 1}", ub=float(max(carry_max, 0)))
+                row_cols.append(out)
+                row_vals.append(-float(M))
+                carry = out
+            self.row(f"{name}.d{d}", row_cols, row_vals, lb=float(b_d), ub=float(b_d))
+
     def build(self, **stats: object) -> LinearModel:
         n, m = len(self._names), len(self._row_names)
         matrix = sp.csr_matrix((np.asarray(self._vals, dtype=np.float64),
@@ -125,7 +181,7 @@ class ModelBuilder:
                            matrix=matrix, row_lb=np.asarray(self._row_lb, dtype=np.float64),
                            row_ub=np.asarray(self._row_ub, dtype=np.float64), row_names=self._row_names,
                            decode=self.decode, integral_ok=np.asarray(self._integral_ok, dtype=bool),
-                           slot=self.slot, stats=dict(stats))
+                           slot=self.slot, stats=dict(stats), byte_digits=self.byte_digits)
 
 
 def index_name(letter: str, j: int, l: int, t: int | None, *, one_object: bool) -> str:

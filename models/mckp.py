@@ -22,7 +22,7 @@ def build_mckp(instance: Instance, slot: int, *, presolved: bool) -> LinearModel
     one = instance.J == 1
     total_max = 0
     choices: list[int] = []
-    costs: list[float] = []
+    costs: list[int] = []
     for j, cost, value, arrivals in zip(opts.objects, opts.cost, opts.value, opts.arrivals):
         vs = []
         for o, (c, u, chunks) in enumerate(zip(cost, value, arrivals)):
@@ -30,10 +30,10 @@ def build_mckp(instance: Instance, slot: int, *, presolved: bool) -> LinearModel
             b.decode.append((v, tuple((jj, ll, slot) for jj, ll in chunks)))
             vs.append(v)
             choices.append(v)
-            costs.append(float(c))
+            costs.append(int(c))
         if len(vs) > 1 or not presolved:
             b.row("choose" if one else f"choose[{j}]", vs, [1.0] * len(vs), ub=1.0)
         total_max += max(cost)
     if not presolved or total_max > opts.budget:
-        b.row("budget", choices, costs, ub=float(opts.budget))
+        b.byte_row("budget", choices, costs, int(opts.budget))
     return b.build(**opts.stats)

@@ -19,6 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import BackendUnavailableError, SolveError
+from l3gs_opt.instance import scale_exponent
 from l3gs_opt.solution import Status
 
 from ..linear import LinearModel
@@ -91,14 +92,16 @@ def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: f
     # zero; HiGHS's 1e-7 dual tolerance lets a 1e-8 relative loss pass as optimal when the largest
     # coefficient is ~1). Scaling by a power of two (exact in float64) so the largest coefficient is
     # about 2**20 keeps every instance, whatever its utility units, at a relative accuracy of ~1e-13.
-    largest = float(np.abs(model.objective).max()) if model.objective.size else 0.0
-    scale = 2.0 ** (_OBJECTIVE_TOP - round(math.log2(largest))) if largest > 0 else 1.0
-    scaled = dataclasses.replace(model, objective=model.objective * scale)
+    # The factor is applied as an exponent (ldexp): 2**k itself overflows for subnormal utilities
+    # (5e-324 needs k = 1094) and underflows for utilities near 1e308.
+    exponent = scale_exponent(model.objective, _OBJECTIVE_TOP)
+    scaled = dataclasses.replace(model, objective=np.ldexp(model.objective, exponent))
     result = module.solve(scaled, time_limit_s=time_limit_s, relax=relax, options=dict(options or {}))
-    if scale == 1.0:
+    if exponent == 0:
         return result
-    return dataclasses.replace(result, bound=None if result.bound is None else result.bound / scale,
-                               details={**result.details, "objective_prescale": scale})
+    bound = None if result.bound is None else math.ldexp(result.bound, -exponent)
+    return dataclasses.replace(result, bound=bound,
+                               details={**result.details, "objective_prescale_log2": exponent})
 
 
 def finite_or(value: float, default: float) -> float:

@@ -24,8 +24,21 @@ from ..linear import LinearModel
 from . import BackendResult
 
 _PRESOLVE_BUG = _pkg_version("highspy").startswith("1.14.")
-_KNOWN = {"threads", "presolve", "random_seed", "mip_feasibility_tolerance", "primal_feasibility_tolerance",
-          "mip_heuristic_run_root_reduced_cost"}
+_KNOWN = {"threads", "presolve", "presolve_rule_off", "random_seed", "mip_feasibility_tolerance",
+          "primal_feasibility_tolerance", "mip_heuristic_run_root_reduced_cost"}
+#: ``presolve_rule_off`` bit of HiGHS's rule 13, "parallel rows and columns". Its parallel-column
+#: dominance test compares two columns' costs per unit of the other column against an *absolute*
+#: 1e-7 (the dual feasibility tolerance), so on a knapsack row whose weights are nearly
+#: proportional it fixes a column that the optimum uses and still reports ``kOptimal``: Jooken's
+#: n_1200_c_1000000_g_14_f_0.3_eps_0.01_s_100 gave 1,011,933 with bound 1,011,933.0000000002 where
+#: the optimum is 1,011,934 (tests/test_known_answers.py). Switching the rule off alone fixes it;
+#: benchmarks/results/highs_presolve.md measures what it costs.
+PARALLEL_RULE_OFF = 1 << 13
+#: A model with base-2**10 digit rows for a huge byte budget (models/linear.py) runs with presolve
+#: off: HiGHS 1.14's aggregator (rule 12) substitutes the digit equalities into each other,
+#: multiplying the digit weights back together, and called a model whose empty schedule is
+#: feasible "infeasible"; with it off, rules 14-16 still returned a schedule 1e-3 below the optimum
+#: as optimal on the stiff suite's bytes_1e12-T5 GAP form. Without presolve all of them were right.
 
 
 def _interrupt_after(h: highspy.Highs, time_limit_s: float) -> None:
@@ -93,7 +106,12 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     # correlated MCKPs once the objective was prescaled (coefficients ~1e6) and still reported
     # kOptimal, one unit short (tests/test_backends.py pins two such instances); at 1e-9 it does
     # not. Our rows have integer data, so the tighter tolerance costs no feasible point.
-    options = {"mip_feasibility_tolerance": 1e-9, **options}
+    defaults: dict[str, Any] = {"mip_feasibility_tolerance": 1e-9}
+    if not relax and model.integer.any():
+        defaults["presolve_rule_off"] = PARALLEL_RULE_OFF
+        if model.byte_digits:
+            defaults["presolve"] = "off"
+    options = {**defaults, **options}
     for key, value in options.items():
         if key not in _KNOWN:
             warnings.warn(f"highs: unknown option {key!r} passed through to HiGHS", stacklevel=3)
@@ -106,8 +124,10 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     values = np.asarray(h.getSolution().col_value, dtype=np.float64) if has_solution else None
     if relax or not model.integer.any():
         bound = float(info.objective_function_value) if status is Status.OPTIMAL else None
-    else:
+    elif status in (Status.OPTIMAL, Status.TIME_LIMIT, Status.FEASIBLE):
         bound = float(info.mip_dual_bound) if np.isfinite(info.mip_dual_bound) else None
+    else:
+        bound = None   # an unset status leaves mip_dual_bound at 0: no bound, not a proof of 0
     return BackendResult(status=status, values=values, bound=bound, version=version(),
                          message=f"HiGHS: {h.modelStatusToString(model_status)}",
                          details={"mip_node_count": int(getattr(info, "mip_node_count", 0)),

@@ -74,7 +74,9 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         bound = objective.Value() if status is Status.OPTIMAL else None
     elif has_solution or status is Status.TIME_LIMIT:
         b = objective.BestBound()
-        bound = float(b) if np.isfinite(b) and abs(b) < 1e300 else None
+        # SCIP's "no bound" is its infinity (1e20), which the caller would divide by the
+        # objective prescale into a plausible-looking number (3.8e14 on a 2x2 instance).
+        bound = float(b) if np.isfinite(b) and abs(b) < inf else None
     return BackendResult(status=status, values=values, bound=bound, version=version() + f" {solver.SolverVersion()}",
                          message=f"SCIP result code {code}",
                          details={"nodes": int(solver.nodes()) if not relax else 0})
