@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from l3gs_opt.models.backends.highs import _interrupt_after  # HiGHS 1.14 overruns time_limit otherwise
+from l3gs_opt.models.backends.highs import PARALLEL_RULE_OFF, _interrupt_after  # HiGHS 1.14 overruns time_limit otherwise
 
 from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
@@ -276,6 +276,9 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     h.setOptionValue("mip_rel_gap", 0.0)
     h.setOptionValue("mip_abs_gap", 0.0)
     h.setOptionValue("mip_feasibility_tolerance", 1e-9)
+    # Its proofs count: HiGHS's parallel-columns presolve rule has returned wrong optima (see
+    # models/backends/highs.py).
+    h.setOptionValue("presolve_rule_off", PARALLEL_RULE_OFF)
     for key, value in (highs_options or {}).items():
         h.setOptionValue(key, value)
     restart = [False]
