@@ -28,7 +28,7 @@ from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
 from l3gs_opt.knapsack_sets import load_knapsack  # noqa: E402
-from l3gs_opt.synth import synth_instance  # noqa: E402
+from l3gs_opt.suites import suite_specs  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = ROOT.parent / "shared" / "data" / "reference" / "knapsack"
@@ -40,16 +40,16 @@ def tasks():
     if SETS.is_dir():
         for path in sorted(SETS.glob("pisinger/*.txt")) + sorted(SETS.glob("jooken/*.in")):
             yield f"knapsack/{path.parent.name}/{path.stem}", path
-    for seed in range(5):
-        yield f"problem1/T60-J20-L4-s{seed}", seed
+    # exact.md's instances: the l3gs suite's T=60, J=20 specs.
+    for spec in [s for s in suite_specs("l3gs", sizes=[20], seeds=5) if not s.single_slot]:
+        yield f"problem1/{spec.name}", spec
 
 
 def build(task):
     if isinstance(task, Path):
         ks = load_knapsack(task)
         return ks.instance, ks.optimum, 0
-    inst = synth_instance(objects=20, layers=4, slots=60, seed=task, trace="lumos-throughput-mid-11")
-    return inst, None, None
+    return task.build(), None, None
 
 
 def run(time_limit: float, resume: bool) -> Path:
@@ -64,15 +64,19 @@ def run(time_limit: float, resume: bool) -> Path:
     info = machine_info()
     with path.open("a") as fh:
         for name, task in tasks():
-            if all((name, v) in done for v in VARIANTS):
-                continue
             inst, optimum, slot = build(task)
-            for variant, options in VARIANTS.items():
+            variants = dict(VARIANTS)
+            if name.startswith("problem1/"):
+                variants["exact"] = None
+            for variant, options in variants.items():
                 if (name, variant) in done:
                     continue
                 load = os.getloadavg()[0]
                 start = time.perf_counter()
-                sol = solve(inst, "ilp", backend="highs", slot=slot, time_limit_s=time_limit, options=options)
+                if options is None:   # exact with its defaults (reduced MIP: rule 13 off)
+                    sol = solve(inst, "exact", time_limit_s=60.0)
+                else:
+                    sol = solve(inst, "ilp", backend="highs", slot=slot, time_limit_s=time_limit, options=options)
                 wall = time.perf_counter() - start
                 rec = {"name": name, "variant": variant, "status": sol.status.value, "objective": sol.objective,
                        "bound": sol.bound, "optimum": optimum, "wall_s": wall, "load1": load,
@@ -97,7 +101,7 @@ def report() -> Path:
         best[r["name"]] = max(best.get(r["name"], -1.0), r["objective"], r["optimum"] or -1.0)
     families = sorted({r["name"].rsplit("/", 1)[0] for r in recs})
     for fam in families:
-        for variant in VARIANTS:
+        for variant in [*VARIANTS, "exact"]:
             rs = [r for r in recs if r["name"].rsplit("/", 1)[0] == fam and r["variant"] == variant]
             if not rs:
                 continue
