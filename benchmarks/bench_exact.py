@@ -35,8 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
-from l3gs_opt.solution import GAP_TOL  # noqa: E402
-from l3gs_opt.suites import split_method, suite_specs  # noqa: E402
+from l3gs_opt.problem.solution import GAP_TOL  # noqa: E402
+from l3gs_opt.bench.suites import split_method, suite_specs  # noqa: E402
 
 EXACT_METHODS = ["exact", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
 #: ``--report`` keeps everything in exact.md from this line on (notes written by hand).

@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
-from l3gs_opt.knapsack_sets import load_knapsack  # noqa: E402
-from l3gs_opt.suites import suite_specs  # noqa: E402
+from l3gs_opt.problem.knapsack_sets import load_knapsack  # noqa: E402
+from l3gs_opt.bench.suites import suite_specs  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = ROOT.parent / "shared" / "data" / "reference" / "knapsack"

@@ -22,7 +22,7 @@ from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
 from l3gs_opt.models import installed_backends  # noqa: E402
-from l3gs_opt.synth import synth_instance  # noqa: E402
+from l3gs_opt.pipeline.synth import synth_instance  # noqa: E402
 
 SETTINGS = {"objects": 20, "layers": 4, "slots": 60, "seed": 0, "trace": "lumos-throughput-mid-11",
             "mbps": 11.8, "start": 0}

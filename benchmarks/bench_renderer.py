@@ -9,7 +9,7 @@ Writes ``<out>.json`` and ``<out>.md``.  ``backend="auto"`` (scaling tables) is 
 when numba is installed, the torch path otherwise.  Every timing is the median of ``--repeats`` runs after
 one warm-up run, with ``os.getloadavg()`` recorded next to it (the machine is shared; a load
 above the core count inflates the times, most of all with 2 torch threads, whose OpenMP
-workers then wait on each other).  Scenes: :func:`l3gs_opt.scene_make.make_scene` (seed 0),
+workers then wait on each other).  Scenes: :func:`l3gs_opt.scene.procedural.make_scene` (seed 0),
 camera: the first orbit view (70 degree horizontal field of view).
 """
 
@@ -25,14 +25,14 @@ from pathlib import Path
 
 import torch
 
-from l3gs_opt.camera_paths import orbit_path
+from l3gs_opt.scene.camera_paths import orbit_path
 from l3gs_opt.renderer import render_gaussians, scene_tensors
 from l3gs_opt.renderer._dense import _rasterize_dense
 from l3gs_opt.renderer._kernels import HAVE_NUMBA
 from l3gs_opt.renderer.projection import camera_tensors, covariances_from_params, project_gaussians
 from l3gs_opt.renderer.rasterize import rasterize
 from l3gs_opt.renderer.sh import sh_to_color
-from l3gs_opt.scene_make import make_scene
+from l3gs_opt.scene.procedural import make_scene
 
 _SCENES: dict[int, object] = {}
 

@@ -37,11 +37,11 @@ SIZES = [1500, 3000, 6000, 12_000]
 
 
 def _prepare(work: Path, variants) -> None:
-    from l3gs_opt.camera_paths import orbit_path
-    from l3gs_opt.poses import synthetic_poses, write_pose_log
-    from l3gs_opt.scene_build import QUICK, build_bundle
-    from l3gs_opt.scene_io import write_ply
-    from l3gs_opt.scene_make import make_scene
+    from l3gs_opt.scene.camera_paths import orbit_path
+    from l3gs_opt.traces.poses import synthetic_poses, write_pose_log
+    from l3gs_opt.pipeline.build import QUICK, build_bundle
+    from l3gs_opt.scene.splats import write_ply
+    from l3gs_opt.scene.procedural import make_scene
 
     work.mkdir(parents=True, exist_ok=True)
     if not (work / "teacher.ply").exists():
@@ -102,9 +102,9 @@ def main() -> int:
         write_markdown(json.loads((out / "simulate.json").read_text()), out / "simulate.md")
         return 0
 
-    from l3gs_opt.bundle import read_bundle
-    from l3gs_opt.sim_render import REFERENCE_CACHE, VIEW_CACHE
-    from l3gs_opt.simulate import SimConfig, Simulation, trace_bytes
+    from l3gs_opt.scene.bundle import read_bundle
+    from l3gs_opt.simulator.render import REFERENCE_CACHE, VIEW_CACHE
+    from l3gs_opt.simulator.simulation import SimConfig, Simulation, trace_bytes
 
     work = Path(args.work)
     variants = args.variants.split(",") if args.variants else ["sort"] + ([] if args.no_separate else ["separate"])

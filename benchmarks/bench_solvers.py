@@ -2,7 +2,7 @@
 
 Families (one slot each):
 
-* ``l3gs`` - L3GS-like: :func:`l3gs_opt.synth.synth_instance` with J objects, L=4 layers,
+* ``l3gs`` - L3GS-like: :func:`l3gs_opt.pipeline.synth.synth_instance` with J objects, L=4 layers,
   180 splats per object on average (Dirichlet shares), byte costs = splats x 248 B, the budget
   of 1 s at 11.8 Mbit/s = 1,475,000 bytes; a 90 degree field of view, so only the objects in
   view (about 40 %) have utility at the slot.
@@ -45,8 +45,8 @@ from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
 from l3gs_opt.errors import SolveError  # noqa: E402
-from l3gs_opt.instance import Instance  # noqa: E402
-from l3gs_opt.synth import synth_instance  # noqa: E402
+from l3gs_opt.problem.instance import Instance  # noqa: E402
+from l3gs_opt.pipeline.synth import synth_instance  # noqa: E402
 
 BUDGET_L3GS = 1_475_000          # 1 s at 11.8 Mbit/s, bytes
 SPLATS_PER_OBJECT = 180

@@ -4,11 +4,11 @@ Usage::
 
     .venv/bin/python benchmarks/bench_trainer.py --quick [--out benchmarks/results/trainer_quick]
 
-Teacher: :func:`l3gs_opt.scene_make.make_scene` (seed 0, SH degree 3, ``--splats`` splats,
+Teacher: :func:`l3gs_opt.scene.procedural.make_scene` (seed 0, SH degree 3, ``--splats`` splats,
 4 objects).  Training cameras: an orbit of ``--views`` cameras; held-out cameras: the orbit
 angles half-way between training cameras (every other one of a twice-as-dense orbit, ``--test``
 of them), so no test pose is a training pose.  Each variant is built with
-:func:`l3gs_opt.scene_build.build_bundle` (the ``QUICK`` or ``DEFAULT`` schedule), read back from
+:func:`l3gs_opt.pipeline.build.build_bundle` (the ``QUICK`` or ``DEFAULT`` schedule), read back from
 its bundle, and every version (layered: layers ``0..l`` stacked; separate: version ``l``;
 sort: the first ``d_l`` splats by significance) is rendered at the training resolution from
 the held-out cameras and scored against the teacher's render from the same camera (PSNR and
@@ -32,14 +32,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
-from l3gs_opt.bundle import read_bundle  # noqa: E402
-from l3gs_opt.camera_paths import orbit_path  # noqa: E402
+from l3gs_opt.scene.bundle import read_bundle  # noqa: E402
+from l3gs_opt.scene.camera_paths import orbit_path  # noqa: E402
 from l3gs_opt.renderer.metrics import psnr, ssim  # noqa: E402
 from l3gs_opt.renderer.render import render_scene  # noqa: E402
 from l3gs_opt.renderer.train import TRAIN_THREADS, threads  # noqa: E402
-from l3gs_opt.scene_build import DEFAULT, QUICK, build_bundle, scale_camera  # noqa: E402
-from l3gs_opt.scene_io import write_ply  # noqa: E402
-from l3gs_opt.scene_make import make_scene  # noqa: E402
+from l3gs_opt.pipeline.build import DEFAULT, QUICK, build_bundle, scale_camera  # noqa: E402
+from l3gs_opt.scene.splats import write_ply  # noqa: E402
+from l3gs_opt.scene.procedural import make_scene  # noqa: E402
 
 VARIANTS = ("layered", "separate", "sort")
 

@@ -28,10 +28,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
-from l3gs_opt.camera_paths import walk_path  # noqa: E402
+from l3gs_opt.scene.camera_paths import walk_path  # noqa: E402
 from l3gs_opt.renderer.projection import project_gaussians  # noqa: E402
-from l3gs_opt.scene_make import make_scene  # noqa: E402
-from l3gs_opt.utility import (UtilityScene, build_utility_table, grid_positions,  # noqa: E402
+from l3gs_opt.scene.procedural import make_scene  # noqa: E402
+from l3gs_opt.pipeline.splat_utility import (UtilityScene, build_utility_table, grid_positions,  # noqa: E402
                               object_layer_utility, splat_utility)
 
 LAYERS = 4
@@ -76,7 +76,7 @@ def _stats(ms: list[float]) -> dict:
 
 
 def _speed(scene, cams, torch_repeats: int) -> dict:
-    from l3gs_opt.utility import _numba_pass
+    from l3gs_opt.pipeline.splat_utility import _numba_pass
 
     t0 = time.perf_counter()
     prep = UtilityScene.from_scene(scene)

@@ -8,53 +8,52 @@ Quick start::
     print(sol.status, sol.objective, sol.bound, sol.gap)
 """
 
-from .errors import BackendUnavailableError, InstanceError, L3gsError, SolveError
-from .instance import MAX_BYTES, SCHEMA, Instance, Options
-from .instance_io import instance_from_dict, load_instance, save_instance
-from .evaluate import evaluate_objective, feasibility_violations, is_feasible
-from .solution import GAP_TOL, ModelSize, Solution, Status, relative_gap
-from .presolve import presolve
-from .api import METHODS, method_names, solve
+from l3gs_opt.errors import BackendUnavailableError, InstanceError, L3gsError, SolveError
+from l3gs_opt.problem.instance import MAX_BYTES, SCHEMA, Instance, Options
+from l3gs_opt.problem.instance_io import instance_from_dict, load_instance, save_instance
+from l3gs_opt.problem.evaluate import evaluate_objective, feasibility_violations, is_feasible
+from l3gs_opt.problem.solution import GAP_TOL, ModelSize, Solution, Status, relative_gap
+from l3gs_opt.problem.presolve import presolve
+from l3gs_opt.methods import METHODS, method_names, solve
 
 __version__ = "0.1.0"
 
 # The rest of the public API is imported on first use (PEP 562): the renderer-backed modules pull
 # in torch, which a user who only solves instances should not wait for.
 _LAZY = {
-    "traces": ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes",
+    "traces.bandwidth": ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes",
                "synthetic_bandwidth"],
-    "synth": ["synth_instance", "walking_viewer"],
-    "predictors": ["PredictionError", "predict_viewport", "viewport_errors", "predict_bandwidth",
+    "pipeline.synth": ["synth_instance", "walking_viewer"],
+    "traces.predictors": ["PredictionError", "predict_viewport", "viewport_errors", "predict_bandwidth",
                    "bandwidth_errors"],
-    "poses": ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
+    "traces.poses": ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
               "write_camera_path", "synthetic_poses"],
-    "utility": ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
+    "pipeline.splat_utility": ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
                 "build_utility_table", "grid_positions"],
-    "bench": ["BenchError", "BenchTask", "run_bench", "read_records"],
+    "bench.run": ["BenchError", "BenchTask", "run_bench", "read_records"],
     # One strict JSON serialiser and one JSONL record writer for every output (issue 19).
     "jsonout": ["OutputError", "JsonOutputError"],
     "records": ["RecordFileError", "OutputLockedError", "RecordLog"],
-    "report": ["write_report"],
-    "suites": ["InstanceSpec", "suite_specs"],
-    "scene_io": ["SceneError", "SplatScene", "read_ply", "write_ply"],
-    "cameras": ["CameraError", "Camera", "load_cameras", "save_cameras", "look_at"],
-    "scene_make": ["make_scene"],
-    "camera_paths": ["orbit_path", "walk_path"],
-    "bundle": ["BUNDLE_SCHEMA", "VARIANTS", "BundleError", "Bundle", "read_bundle", "write_bundle", "split_layers"],
-    "scene_build": ["BuildError", "BuildSchedule", "build_bundle"],
-    "segment": ["segment_scene"],
-    "scene_instance": ["instance_from_bundle"],
-    "link": ["LinkError", "Link", "SlotDelivery", "max_min_shares", "split_bytes"],
-    # The function ``simulate`` stays in its module: the package attribute of that name is the module.
-    "simulate": ["SimulationError", "SimConfig", "Simulation", "SimulationResult", "SIM_METHODS"],
-    "experiments": ["ExperimentError", "ExperimentPlan", "make_plan", "run_experiments"],
-    "sim_shared": ["run_shared", "simulate_shared"],
-    "sim_render": ["RenderCache"],
+    "bench.report": ["write_report"],
+    "bench.suites": ["InstanceSpec", "suite_specs"],
+    "scene.splats": ["SceneError", "SplatScene", "read_ply", "write_ply"],
+    "scene.cameras": ["CameraError", "Camera", "load_cameras", "save_cameras", "look_at"],
+    "scene.procedural": ["make_scene"],
+    "scene.camera_paths": ["orbit_path", "walk_path"],
+    "scene.bundle": ["BUNDLE_SCHEMA", "VARIANTS", "BundleError", "Bundle", "read_bundle", "write_bundle", "split_layers"],
+    "pipeline.build": ["BuildError", "BuildSchedule", "build_bundle"],
+    "scene.segment": ["segment_scene"],
+    "pipeline.scene_instance": ["instance_from_bundle"],
+    "simulator.link": ["LinkError", "Link", "SlotDelivery", "max_min_shares", "split_bytes"],
+    "simulator.simulation": ["SimulationError", "SimConfig", "Simulation", "SimulationResult", "SIM_METHODS"],
+    "experiments.run": ["ExperimentError", "ExperimentPlan", "make_plan", "run_experiments"],
+    "simulator.shared": ["run_shared", "simulate_shared"],
+    "simulator.render": ["RenderCache"],
     # The item form (l3gs-opt/items@1): precedence DAG and replacement groups (distill, hierarchy bundles).
-    "items": ["ITEMS_SCHEMA", "ItemInstanceError", "ItemInstance", "items_from_instance", "instance_arrivals",
+    "problem.items": ["ITEMS_SCHEMA", "ItemInstanceError", "ItemInstance", "items_from_instance", "instance_arrivals",
               "distill_items", "hierarchy_items"],
-    "items_io": ["items_from_dict", "load_items", "save_items"],
-    "items_eval": ["evaluate_items", "item_violations", "items_feasible"],
+    "problem.items_io": ["items_from_dict", "load_items", "save_items"],
+    "problem.items_eval": ["evaluate_items", "item_violations", "items_feasible"],
 }
 _LAZY_NAMES = {name: module for module, names in _LAZY.items() for name in names}
 

@@ -23,7 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import L3gsError
+from l3gs_opt.errors import L3gsError
 
 __all__ = ["MAX_TEXT_BYTES", "MAX_JSON_DEPTH", "MAX_NPZ_BYTES", "MAX_BINARY_BYTES", "ErrorFactory",
            "check_regular_file", "read_text", "read_bytes", "parse_json", "read_json", "load_npz", "key_name"]

@@ -35,7 +35,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import L3gsError
+from l3gs_opt.errors import L3gsError
 
 __all__ = ["OutputError", "JsonOutputError", "to_jsonable", "dumps"]
 

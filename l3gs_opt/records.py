@@ -34,7 +34,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-from .jsonout import OutputError, dumps
+from l3gs_opt.jsonout import OutputError, dumps
 
 __all__ = ["LOCK_SUFFIX", "RecordFileError", "OutputLockedError", "read_records", "repair_torn_tail",
            "OutputLock", "RecordLog", "append_record", "rewrite_records", "prepare_path"]

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import Reduction
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import Reduction
 
 from .linear import BYTE_SPLIT_ABOVE, ModelBuilder, index_name
 

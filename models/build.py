@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import presolve
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import presolve
 
 from .gap import build_gap
 from .layered import build_layered

@@ -5,8 +5,8 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Mapping
 
-from l3gs_opt.instance import Instance
-from l3gs_opt.solution import Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from .backends import Backend, solve_model
 from .build import build_model

@@ -1,6 +1,6 @@
 """The item form (``l3gs-opt/items@1``): precedence DAG and replacement groups, as one ILP.
 
-Variables, for active items i (see :mod:`l3gs_opt.items_presolve`) and slots t:
+Variables, for active items i (see :mod:`l3gs_opt.problem.items_presolve`) and slots t:
 
 * ``x[i,t]`` binary: item i arrives in slot t; ``y[i,t]`` binary: i has arrived by slot t,
   ``y[t] = y[t-1] + x[t]`` (so each item arrives at most once);
@@ -14,7 +14,7 @@ subject to byte budgets, and per edge ``parent -> child`` the precedence
 ``y[child,t] <= y[parent,t]`` (``<= y[parent,t-1]`` when ``same_slot_layers`` is false).
 
 Problem I is the special case of singleton groups and chains, Problem II of one group per object
-and no edges: on :func:`~l3gs_opt.items.items_from_instance` this model has the optimum of
+and no edges: on :func:`~l3gs_opt.problem.items.items_from_instance` this model has the optimum of
 :mod:`.layered` / :mod:`.separate` (tests/test_items.py). The arrival, holding and budget rows
 are those of :mod:`._common`, applied to the items as the "layers" of one object.
 """
@@ -28,10 +28,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Options
-from l3gs_opt.items import ItemInstance
-from l3gs_opt.items_presolve import ItemReduction, presolve_items
-from l3gs_opt.solution import Solution
+from l3gs_opt.problem.instance import Options
+from l3gs_opt.problem.items import ItemInstance
+from l3gs_opt.problem.items_presolve import ItemReduction, presolve_items
+from l3gs_opt.problem.solution import Solution
 
 from ._common import add_arrivals, add_budget, add_holding
 from .backends import Backend
@@ -69,7 +69,7 @@ def _check_slot(instance: ItemInstance, slot: Any) -> int:
 def build_items_model(instance: ItemInstance, *, slot: int | None = None,
                       presolve_enabled: bool = True) -> LinearModel:
     """The ILP of an item instance (see the module docstring), or with ``slot`` its single-slot
-    problem given ``held`` (:meth:`~l3gs_opt.items.ItemInstance.slot_instance`; arrivals decode to
+    problem given ``held`` (:meth:`~l3gs_opt.problem.items.ItemInstance.slot_instance`; arrivals decode to
     that slot, ``problem = "MCKP"``).
 
     Raises

@@ -8,8 +8,8 @@ layers are off). Problem III is the same model for a single object.
 
 from __future__ import annotations
 
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import Reduction
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import Reduction
 
 from ._common import add_arrivals, add_budget, add_holding, shown_objective
 from .linear import LinearModel, ModelBuilder, index_name

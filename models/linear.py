@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from l3gs_opt.solution import ModelSize
+from l3gs_opt.problem.solution import ModelSize
 
 __all__ = ["LinearModel", "ModelBuilder", "BYTE_SPLIT_ABOVE", "BYTE_DIGIT"]
 

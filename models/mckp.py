@@ -7,8 +7,8 @@ separate) to maximise the extra utility shown at the slot within the slot's byte
 
 from __future__ import annotations
 
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import mckp_options
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import mckp_options
 
 from .linear import LinearModel, ModelBuilder
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import Reduction
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import Reduction
 
 from ._common import add_arrivals, add_budget, add_holding, shift
 from .linear import LinearModel, ModelBuilder, index_name

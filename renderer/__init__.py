@@ -14,8 +14,8 @@ eval_sh, sh_to_color
 psnr, ssim
     Image metrics (scikit-image; LPIPS is not available offline).
 
-Scene and camera I/O live in :mod:`l3gs_opt.scene_io`, :mod:`l3gs_opt.cameras`,
-:mod:`l3gs_opt.scene_make` and :mod:`l3gs_opt.camera_paths`.
+Scene and camera I/O live in :mod:`l3gs_opt.scene.splats`, :mod:`l3gs_opt.scene.cameras`,
+:mod:`l3gs_opt.scene.procedural` and :mod:`l3gs_opt.scene.camera_paths`.
 """
 
 from ._kernels import HAVE_NUMBA

@@ -101,7 +101,7 @@ def _render_reference(means, log_scales, quats, opacity_logits, sh, camera, back
     Parameters
     ----------
     means [N, 3], log_scales [N, 3], quats [N, 4], opacity_logits [N], sh [N, K, 3] : array_like
-    camera : l3gs_opt.cameras.Camera
+    camera : l3gs_opt.scene.cameras.Camera
     background : array_like, shape [3], optional (default ``camera.background``)
 
     Returns

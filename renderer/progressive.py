@@ -182,7 +182,7 @@ def train_layer(lower, new_splats, views: Sequence[View], *, config: TrainConfig
     """
     import dataclasses
 
-    from l3gs_opt.scene_io import SplatScene
+    from l3gs_opt.scene.splats import SplatScene
 
     level = 0 if lower is None else lower.num_layers
     if lower is None:

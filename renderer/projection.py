@@ -67,7 +67,7 @@ class Projection(NamedTuple):
 
 
 def camera_tensors(camera, dtype=torch.float32, device=None) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(world_to_camera [4, 4], camera centre [3])`` of a :class:`l3gs_opt.cameras.Camera` as tensors."""
+    """``(world_to_camera [4, 4], camera centre [3])`` of a :class:`l3gs_opt.scene.cameras.Camera` as tensors."""
     w2c = torch.tensor(np.array(camera.world_to_camera, dtype=np.float64))
     center = -(w2c[:3, :3].T @ w2c[:3, 3])
     return w2c.to(dtype=dtype, device=device), center.to(dtype=dtype, device=device)
@@ -150,7 +150,7 @@ def project_gaussians(means: torch.Tensor, covars: torch.Tensor, camera, *,
         World positions.
     covars : Tensor, shape [N, 3, 3]
         World covariances (e.g. from :func:`covariances_from_params`).
-    camera : l3gs_opt.cameras.Camera
+    camera : l3gs_opt.scene.cameras.Camera
         Pinhole camera, OpenCV convention.
     near : float, keyword-only
         Near plane (camera z); closer splats are culled.

@@ -61,7 +61,7 @@ def render_gaussians(means: torch.Tensor, log_scales: torch.Tensor, quats: torch
         Opacity before the sigmoid.
     sh : Tensor, shape [N, K, 3]
         SH coefficients, ``K`` in {1, 4, 9, 16}.
-    camera : l3gs_opt.cameras.Camera
+    camera : l3gs_opt.scene.cameras.Camera
     background : array_like, shape [3], keyword-only
         Defaults to ``camera.background``.
     sh_degree : int, keyword-only
@@ -96,7 +96,7 @@ def render_gaussians(means: torch.Tensor, log_scales: torch.Tensor, quats: torch
 
 
 def scene_tensors(scene, dtype=torch.float32, requires_grad: bool = False) -> dict:
-    """The parameters of a :class:`l3gs_opt.scene_io.SplatScene` as tensors (keys as in
+    """The parameters of a :class:`l3gs_opt.scene.splats.SplatScene` as tensors (keys as in
     :func:`render_gaussians`: ``means``, ``log_scales``, ``quats``, ``opacity_logits``, ``sh``)."""
     out = {}
     for k in ("means", "log_scales", "quats", "opacity_logits", "sh"):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "eval_sh", "sh_basis", "sh_to_color", "rgb_to_sh_dc"]
+__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "eval_sh", "sh_basis", "sh_to_color"]
 
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
@@ -99,8 +99,3 @@ def sh_to_color(sh: torch.Tensor, means: torch.Tensor, camera_center: torch.Tens
     # (clamped so that a splat at the camera centre, culled anyway, cannot give NaN gradients)
     d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True).clamp_min(1e-12)
     return torch.clamp_min(eval_sh(degree, sh, d) + 0.5, 0.0)
-
-
-def rgb_to_sh_dc(rgb):
-    """DC coefficient that renders as ``rgb`` (``(rgb - 0.5) / SH_C0``); works on arrays and tensors."""
-    return (rgb - 0.5) / SH_C0

@@ -229,7 +229,7 @@ def training_loss(image: torch.Tensor, target: torch.Tensor, lambda_ssim: float 
 
 def scene_from_params(params: dict, object_ids, template):
     """A SplatScene from parameter tensors (float32), keeping ``template``'s optional fields off."""
-    from l3gs_opt.scene_io import SplatScene
+    from l3gs_opt.scene.splats import SplatScene
 
     arr = {k: params[k].detach().to(torch.float32).numpy() for k in _PARAM_KEYS}
     return SplatScene(**arr, object_ids=None if object_ids is None else np.asarray(object_ids))

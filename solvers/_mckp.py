@@ -1,9 +1,9 @@
 """Array core of the single-slot multiple-choice knapsack (MCKP): options, LP hull, bb, dp, fptas.
 
 Everything here works on a padded option table (:class:`OptionTable`) rather than on an
-:class:`~l3gs_opt.instance.Instance`, so that the rolling schedulers can call it each slot
+:class:`~l3gs_opt.problem.instance.Instance`, so that the rolling schedulers can call it each slot
 with their own valuation (e.g. future utility). :mod:`l3gs_opt.solvers.mckp` wraps it for
-instances and returns :class:`~l3gs_opt.solution.Solution` objects.
+instances and returns :class:`~l3gs_opt.problem.solution.Solution` objects.
 
 Problem, per row ``i`` (an object with something left to gain) and option ``o``::
 
@@ -117,7 +117,7 @@ class OptionTable:
 
 def build_table(*, layered: bool, cost: np.ndarray, gain: np.ndarray, held: np.ndarray, budget: int,
                 same_slot_layers: bool = True, pareto: bool = True) -> OptionTable:
-    """The option table of one slot (vectorised :func:`l3gs_opt.presolve.mckp_options`).
+    """The option table of one slot (vectorised :func:`l3gs_opt.problem.presolve.mckp_options`).
 
     Parameters
     ----------

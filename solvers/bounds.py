@@ -10,8 +10,8 @@ from __future__ import annotations
 import time
 
 from l3gs_opt.errors import BackendUnavailableError
-from l3gs_opt.instance import Instance
-from l3gs_opt.items import ItemInstance
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.items import ItemInstance
 
 __all__ = ["LP_BOUND_SLACK", "lp_bound"]
 

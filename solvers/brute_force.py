@@ -1,7 +1,7 @@
 """Brute force: every schedule of a tiny instance, checked and valued straight from the definitions.
 
 The reference the tests hold every model and solver to. It shares no code with the models or
-with :mod:`l3gs_opt.evaluate`: rules and objective are written out again here, plainly.
+with :mod:`l3gs_opt.problem.evaluate`: rules and objective are written out again here, plainly.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import itertools
 import time
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.solution import Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 __all__ = ["solve_brute_force", "MAX_SCHEDULES"]
 

@@ -53,8 +53,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.solution import GAP_TOL, Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
 
 from .colgen import ColumnPool, column_generation
 from . import lagrange
@@ -370,7 +370,7 @@ def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.nd
 
 def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadline: float | None
            ) -> tuple[np.ndarray, str, dict[str, float]]:
-    from l3gs_opt.api import solve
+    from .registry import resolve   # the heuristics directly, not through the public solve()
 
     best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
     best_val = assignment_value(data, best)
@@ -378,7 +378,7 @@ def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadl
         left = None if deadline is None else deadline - time.perf_counter()
         if left is not None and left <= 0:
             break
-        sol = solve(instance, name, time_limit_s=left, options={"bound": False})
+        sol = resolve(name)(instance, time_limit_s=left, options={"bound": False})
         assign = data.assignment(instance, sol.arrivals)
         if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
             continue

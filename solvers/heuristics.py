@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import shown_value
-from l3gs_opt.solution import Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import shown_value
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from . import _mckp
 from ._mckp import MckpResult, OptionTable

@@ -20,7 +20,7 @@ relaxation of the item ILP (HiGHS).
 
 **Brute force** (:func:`solve_items_brute_force`) enumerates every schedule of a tiny instance,
 with the rules and the objective written out again; it shares no code with the models, with
-:mod:`l3gs_opt.items_eval` or with the enumeration here.
+:mod:`l3gs_opt.problem.items_eval` or with the enumeration here.
 """
 
 from __future__ import annotations
@@ -34,19 +34,17 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.items import ItemInstance, item_gain
-from l3gs_opt.items_eval import finish_items_solution
-from l3gs_opt.solution import Solution, Status
+from l3gs_opt.problem.arguments import check_time_limit
+from l3gs_opt.problem.items import ItemInstance, item_gain
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from . import _mckp
 from ._mckp import MckpResult, OptionTable
 from .mckp import resolve_slot
-from .bounds import lp_bound
 from .brute_force import MAX_SCHEDULES
 
 __all__ = ["MAX_CLOSED_SETS", "ITEM_METHODS", "closed_sets", "item_slot_table", "solve_items",
-           "solve_items_slot", "solve_items_rolling", "solve_items_mpc", "solve_items_brute_force",
-           "items_lp_bound"]
+           "solve_items_slot", "solve_items_rolling", "solve_items_mpc", "solve_items_brute_force"]
 
 #: Most precedence-closed item sets enumerated for one object in one state. An object whose items
 #: are independent has 2^n of them (a ``distill`` object with L layers about 2^(L+1)); past this
@@ -193,7 +191,7 @@ def item_slot_table(instance: ItemInstance, gain: np.ndarray, held: np.ndarray, 
     ----------
     gain : float array [T', N]
         What showing each item adds over its group's held items, per valued slot
-        (:func:`l3gs_opt.items.item_gain` given ``held``).
+        (:func:`l3gs_opt.problem.items.item_gain` given ``held``).
     held, parent_ok : bool arrays [N]
         Held items; items that may serve as parents this slot (held before it).
     budget : int
@@ -257,19 +255,13 @@ def solve_items_slot(instance: ItemInstance, solver: str, *, slot: int | None = 
     else:
         status = Status.FEASIBLE
         message = "LP-greedy; bound is the LP relaxation" if solver == "greedy" else f"{solver}: approximation"
-    return finish_items_solution(inst, arrivals, problem="MCKP", method=solver, status=status,
+    return finish_solution(inst, arrivals, problem="MCKP", method=solver, status=status,
                                  bound=result.bound + constant, runtime_s=time.perf_counter() - started, slot=slot,
                                  message=message, details={**result.stats, "rows": table.n,
                                                            "options": int(table.valid.sum())})
 
 
 # -- the LP bound -----------------------------------------------------------------------------------
-
-def items_lp_bound(instance: ItemInstance) -> tuple[float | None, float]:
-    """Upper bound on the item problem: :func:`l3gs_opt.solvers.bounds.lp_bound` (its presolved
-    ILP's LP relaxation by HiGHS, plus the held constant and ``LP_BOUND_SLACK`` relative)."""
-    return lp_bound(instance)
-
 
 # -- rolling schedulers -------------------------------------------------------------------------------
 
@@ -309,7 +301,7 @@ def solve_items_rolling(instance: ItemInstance, solver: str, *, future: bool = F
         return tab, lambda row, option: list(sets[row][int(tab.level[row, option])])
 
     def finish(arrivals, **kw) -> Solution:
-        return finish_items_solution(inst, arrivals, problem="items", **kw)
+        return finish_solution(inst, arrivals, problem="items", **kw)
 
     form = RollingForm(held=inst.held.copy(), table=table, arrival=lambda i, t: (int(inst.object[i]), int(i), t),
                        finish=finish, held_value=math.fsum(item_gain(inst)[1].ravel().tolist()),
@@ -392,7 +384,7 @@ def solve_items_brute_force(instance: ItemInstance, *, slot: int | None = None) 
         if value > best_value:
             best_value, best = value, when
     arrivals = [(int(inst.object[i]), i, t) for i, t in best.items()]
-    return finish_items_solution(inst, arrivals, problem="MCKP" if slot is not None else "items", method="brute",
+    return finish_solution(inst, arrivals, problem="MCKP" if slot is not None else "items", method="brute",
                                  status=Status.OPTIMAL, bound=best_value, runtime_s=time.perf_counter() - started,
                                  slot=slot, message=f"enumerated {count} schedules")
 
@@ -419,8 +411,6 @@ def solve_items(instance: ItemInstance, method: str = "ilp", *, backend: str = "
         A method that does not apply to item instances (``exact``, ``progressive``, ``slope``,
         ``static`` are written for Problem I/II's chains), or a malformed name.
     """
-    from l3gs_opt.api import check_time_limit   # the one check every method shares (inf: no limit)
-
     from .rolling import parse_eps
 
     time_limit_s = check_time_limit(time_limit_s)

@@ -8,7 +8,7 @@ Problem A, for layered instances (Problems I and III)::
          sum_{s<=t} x[u,s] - sum_{s<=t-d} x[lo(u),s] <= 0          (precedence; multiplier pi[u,t])
 
 where ``i`` runs over the chunks (j, l) presolve keeps, ``P[i,t]`` is the utility chunk i earns
-from arriving in slot t to the horizon (``dU~`` of DESIGN.md), ``lo(u)`` is the layer under u
+from arriving in slot t to the horizon (``dU~`` of docs/design.md), ``lo(u)`` is the layer under u
 (when it is not held) and ``d`` is 0 (same-slot layers) or 1 (strict). Dualising the two
 linking families leaves one 0-1 knapsack per slot with reduced profits
 
@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import presolve
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import presolve
 
 from . import _mckp
 

@@ -38,8 +38,8 @@ import time
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.solution import Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 __all__ = ["solve_link_dp", "link_dp_states", "MAX_STATES"]
 
@@ -182,7 +182,7 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
         j, l = (int(v) for v in back_chunk[s])
         arrivals.append((j, l, int(slot[s])))
         s = int(back_state[s])
-    from l3gs_opt.evaluate import evaluate_objective
+    from l3gs_opt.problem.evaluate import evaluate_objective
 
     objective = evaluate_objective(inst, arrivals)
     problem = ("I" if J > 1 else "III") if inst.layered else ("II" if J > 1 else "IV")

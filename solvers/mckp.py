@@ -1,7 +1,7 @@
 """Single-slot methods: ``bb``, ``dp``, ``fptas:EPS`` and ``greedy`` on an instance's slot.
 
-Each solves the single-slot MCKP of DESIGN.md (the paper's Lemma 3) at ``slot`` given
-``instance.held`` and returns a :class:`~l3gs_opt.solution.Solution` with ``problem="MCKP"``,
+Each solves the single-slot MCKP of docs/design.md (the paper's Lemma 3) at ``slot`` given
+``instance.held`` and returns a :class:`~l3gs_opt.problem.solution.Solution` with ``problem="MCKP"``,
 whose objective is the utility shown at the slot, held chunks included.
 
 * ``bb`` - exact: LP bound from upper hulls, Lagrangian reduction, bounded state DP
@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import shown_value
-from l3gs_opt.solution import Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import shown_value
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from . import _mckp
 from ._mckp import OptionTable

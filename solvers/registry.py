@@ -15,12 +15,11 @@ instance has one slot; multi-slot methods (``rolling:*``, ``rolling-future:*``, 
 from __future__ import annotations
 
 import functools
-import warnings
 from typing import Any, Callable
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.solution import Solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import Solution
 
 from .brute_force import solve_brute_force
 
@@ -33,19 +32,6 @@ def _brute(instance: Instance, *, slot: int | None = None, time_limit_s: float |
            **_model_options: Any) -> Solution:
     # Enumeration needs no backend, form or presolve: those options do not apply and are ignored.
     return solve_brute_force(instance, slot=slot)
-
-
-def _exact(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-           options: Any = None, **_model_options: Any) -> Solution:
-    from .exact import solve_exact
-
-    known = ("branching", "lns_width", "heuristics", "max_nodes")
-    opts = dict(options or {})
-    for key in [k for k in opts if k not in known]:
-        warnings.warn(f"method 'exact': option {key!r} is unknown (known: {', '.join(known)}); ignored",
-                      stacklevel=3)
-        opts.pop(key)
-    return solve_exact(instance, slot=slot, time_limit_s=time_limit_s, **opts)
 
 
 def _with_bound(options: Any) -> bool:
@@ -124,7 +110,7 @@ def _link_dp(instance: Instance, *, slot: int | None = None, time_limit_s: float
     return solve_link_dp(instance, time_limit_s=time_limit_s)
 
 
-_FIXED: dict[str, SolverFn] = {"brute": _brute, "exact": _exact, "link-dp": _link_dp}
+_FIXED: dict[str, SolverFn] = {"brute": _brute, "link-dp": _link_dp}
 _SINGLE = ("bb", "dp", "greedy")
 _MULTI = ("progressive", "slope", "static")
 _PARAMETRISED = ("fptas:EPS", "mpc:H", "rolling:SOLVER", "rolling-future:SOLVER")

@@ -34,9 +34,9 @@ from typing import Any, Callable
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
-from l3gs_opt.presolve import shown_value
-from l3gs_opt.solution import Solution, Status, finish_solution
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.presolve import shown_value
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from . import _mckp
 from ._mckp import MckpResult, OptionTable
@@ -279,7 +279,7 @@ def solve_mpc(instance: Any, horizon: int, *, slot: int | None = None, time_limi
     so the window's cumulative budgets are the real ones. Each window gets an equal share of
     the time left.
     """
-    from l3gs_opt.items import ItemInstance
+    from l3gs_opt.problem.items import ItemInstance
     from l3gs_opt.models import solve_ilp, solve_items_ilp
 
     name = f"mpc:{horizon}"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from l3gs_opt.cameras import Camera, look_at
-from l3gs_opt.scene_io import SplatScene
+from l3gs_opt.scene.cameras import Camera, look_at
+from l3gs_opt.scene.splats import SplatScene
 
 PARAM_KEYS = ("means", "log_scales", "quats", "opacity_logits", "sh")
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from l3gs_opt.instance import Instance, Options
+from l3gs_opt.problem.instance import Instance, Options
 
 FAMILIES = ("random", "stiff", "ties", "zero", "huge", "held")
 OPTIONS = [Options(), Options(same_slot_layers=False), Options(availability="next_slot"),

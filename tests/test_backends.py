@@ -10,7 +10,7 @@ import pytest
 
 from l3gs_opt import BackendUnavailableError, SolveError, Status, instance_from_dict, is_feasible, solve
 from l3gs_opt.models import Backend, build_model, installed_backends, solve_model
-from l3gs_opt.synth import synth_instance
+from l3gs_opt.pipeline.synth import synth_instance
 
 from core_helpers import ALL_OPTIONS, option_id, random_instance
 
@@ -67,7 +67,7 @@ def test_regression_highs_114_presolve_suboptimal_on_continuous_columns():
 def test_regression_highs_114_prunes_optimum_of_prescaled_strongly_correlated_mckp(kind, objects, items,
                                                                                   seed, optimum):
     """HiGHS 1.14.0 returned optimum - 1 as 'optimal' here (found by the bench's cross-check)."""
-    from l3gs_opt.suites import _pisinger
+    from l3gs_opt.bench.suites import _pisinger
     inst = _pisinger(kind=kind, objects=objects, items=items, seed=seed)
     exact = solve(inst, "bb", slot=0)
     assert exact.status is Status.OPTIMAL and exact.objective == optimum

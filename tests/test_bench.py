@@ -11,11 +11,11 @@ import time
 import pytest
 
 from l3gs_opt import Status
-from l3gs_opt.bench import RECORD_SCHEMA, BenchTask, read_records, run_bench
-from l3gs_opt.cli import main
-from l3gs_opt.report import annotate, write_report
-from l3gs_opt.solution import Solution
-from l3gs_opt.suites import STIFF_CASES, InstanceSpec, suite_specs
+from l3gs_opt.bench.run import RECORD_SCHEMA, BenchTask, read_records, run_bench
+from l3gs_opt.cli.main import main
+from l3gs_opt.bench.report import annotate, write_report
+from l3gs_opt.problem.solution import Solution
+from l3gs_opt.bench.suites import STIFF_CASES, InstanceSpec, suite_specs
 
 SPEC = InstanceSpec("stiff", "ties-T1", "stiff", {"case": "ties", "slots": 1}, True)
 MULTI = InstanceSpec("stiff", "cost_7_orders-T5", "stiff", {"case": "cost_7_orders", "slots": 5}, False)
@@ -39,7 +39,7 @@ def over_budget(instance, *, slot=None, **_):
 
 def suboptimal_claim(instance, *, slot=None, **_):
     """Claims optimality for the empty schedule (a wrong exact method)."""
-    from l3gs_opt.evaluate import evaluate_objective
+    from l3gs_opt.problem.evaluate import evaluate_objective
 
     value = evaluate_objective(instance, (), slot=slot)
     return Solution(problem="I", method="lazy", status=Status.OPTIMAL, arrivals=(), objective=value, bound=value,
@@ -96,7 +96,7 @@ def test_wrong_methods_are_flagged_not_dropped(tmp_path):
 
 def test_recheck_replays_cross_flags_after_a_rerun():
     """Records flagged against a wrong answer lose the flag once that answer is gone from the file."""
-    from l3gs_opt.bench import recheck
+    from l3gs_opt.bench.run import recheck
 
     def rec(method, objective, bound, flags=()):
         return {"suite": "s", "instance_id": "i", "record_id": f"s/i/{method}", "method": method,
@@ -128,7 +128,7 @@ def test_hung_method_is_killed(tmp_path):
 
 def test_interrupted_run_resumes_without_losing_records(tmp_path):
     out = tmp_path / "bench"
-    cmd = [sys.executable, "-m", "l3gs_opt.cli", "bench", "--suite", "stiff", "--methods", "ilp/highs,ilp/cbc",
+    cmd = [sys.executable, "-m", "l3gs_opt.cli.main", "bench", "--suite", "stiff", "--methods", "ilp/highs,ilp/cbc",
            "--out", str(out), "--no-progress", "--time-limit", "30"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     results = out / "results.jsonl"
@@ -216,7 +216,7 @@ def test_regression_jsonable_negative_infinity_in_details():
     import numpy as np
     import math as _math
 
-    from l3gs_opt.bench import _jsonable
+    from l3gs_opt.bench.run import _jsonable
 
     details = {"bound": -_math.inf, "x": [_math.nan, _math.inf, np.float64(2.5)], "n": np.int64(3),
                "flag": np.bool_(True), "arr": np.array([1.0, -np.inf]), "what": "NaN and -Infinity in text",

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from l3gs_opt.bundle import (BUNDLE_SCHEMA, BundleError, effective_sh_degree, read_bundle, record_fields,
+from l3gs_opt.scene.bundle import (BUNDLE_SCHEMA, BundleError, effective_sh_degree, read_bundle, record_fields,
                              split_layers, write_bundle)
-from l3gs_opt.scene_io import bytes_per_splat
+from l3gs_opt.scene.splats import bytes_per_splat
 from renderer_helpers import random_scene
 
 _KEYS = ("means", "log_scales", "quats", "opacity_logits", "sh", "object_ids")

@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from l3gs_opt.bundle import read_bundle
-from l3gs_opt.cameras import save_cameras
-from l3gs_opt.cli_scene import register
+from l3gs_opt.scene.bundle import read_bundle
+from l3gs_opt.scene.cameras import save_cameras
+from l3gs_opt.cli.scene import register
 from l3gs_opt.renderer.progressive import SizeError
-from l3gs_opt.scene_build import BuildError, BuildSchedule, build_bundle
-from l3gs_opt.scene_io import write_ply
+from l3gs_opt.pipeline.build import BuildError, BuildSchedule, build_bundle
+from l3gs_opt.scene.splats import write_ply
 from renderer_helpers import make_camera, random_scene
 
 TINY = BuildSchedule(max_width=24, prune_ratio=0.5, recovery_iterations=2, finetune_iterations=2,

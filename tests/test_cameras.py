@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from l3gs_opt.camera_paths import orbit_path, walk_path
-from l3gs_opt.cameras import (Camera, CameraError, camera_to_dict, load_camera, load_cameras, look_at,
+from l3gs_opt.scene.camera_paths import orbit_path, walk_path
+from l3gs_opt.scene.cameras import (Camera, CameraError, camera_to_dict, load_camera, load_cameras, look_at,
                               read_blender, read_colmap, save_cameras, write_blender, write_colmap)
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.renderer import render_scene

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from l3gs_opt import Instance, evaluate_objective, is_feasible, load_instance, save_instance
-from l3gs_opt.cli import main
+from l3gs_opt.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -121,7 +121,7 @@ def test_full_demo_with_quick_bench(tmp_path, capsys):
 def test_demo_step_five_runs_the_experiments_and_resumes(tmp_path, capsys, monkeypatch):
     """The demo's last step on the tiny experiments plan: a report with plots, one line per method,
     and a second demo in the same folder redoes nothing."""
-    import l3gs_opt.experiments as experiments
+    import l3gs_opt.experiments.run as experiments
     from test_experiments import _tiny_plan
 
     plan = _tiny_plan()
@@ -143,8 +143,8 @@ def test_demo_step_five_runs_the_experiments_and_resumes(tmp_path, capsys, monke
 
 def test_item_instances_go_through_solve_and_check(capsys, tmp_path):
     """An ``l3gs-opt/items@1`` file is read by its schema: solved by the item ILP, equal to brute force."""
-    from l3gs_opt.items import distill_items
-    from l3gs_opt.items_io import save_items
+    from l3gs_opt.problem.items import distill_items
+    from l3gs_opt.problem.items_io import save_items
 
     rng = np.random.default_rng(3)
     T, J, L = 3, 2, 2

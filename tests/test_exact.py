@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from core_helpers import PER_SLOT_OPTIONS, random_instance
 from l3gs_opt import Instance, Options, solve
 from l3gs_opt.errors import SolveError
-from l3gs_opt.evaluate import evaluate_objective, is_feasible
-from l3gs_opt.solution import GAP_TOL, Status
+from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
+from l3gs_opt.problem.solution import GAP_TOL, Status
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.colgen import ColumnPool, column_generation
 import l3gs_opt.solvers.exact as exact_module
@@ -246,7 +246,7 @@ def test_time_limit_returns_valid_bound_and_feasible_schedule(objects, slots, se
     """A limit that stops the run early, or long enough to reach the reduced MIP but (usually) too
     short to close it: a feasible answer, ``time_limit`` with a gap or ``optimal`` (never
     ``feasible``), and a bound no smaller than the ILP's optimum."""
-    from l3gs_opt.synth import synth_instance
+    from l3gs_opt.pipeline.synth import synth_instance
 
     inst = synth_instance(objects=objects, layers=4, slots=slots, seed=seed)
     sol = solve(inst, "exact", time_limit_s=limit_s)
@@ -320,7 +320,7 @@ def test_rejects_slot_and_unknown_branching() -> None:
 def test_paper_scale_short_run_is_certified() -> None:
     """J=20, L=4, T=60 (the l3gs suite's first T=60 spec) under a 20 s limit: a feasible
     schedule, a valid bound, and a gap far below the heuristics' (no timed assertion)."""
-    from l3gs_opt.suites import suite_specs
+    from l3gs_opt.bench.suites import suite_specs
 
     spec = [s for s in suite_specs("l3gs", sizes=[20], seeds=1) if not s.single_slot][0]
     inst = spec.build()

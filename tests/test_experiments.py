@@ -14,13 +14,13 @@ import json
 import numpy as np
 import pytest
 
-from l3gs_opt.cli import main
-from l3gs_opt.experiments import (PAPER_SCENE_BYTES, ExperimentError, SceneSpec, _arrivals, make_plan,
+from l3gs_opt.cli.main import main
+from l3gs_opt.experiments.run import (PAPER_SCENE_BYTES, ExperimentError, SceneSpec, _arrivals, make_plan,
                                   run_experiments, scaled_mbps, trace_class)
-from l3gs_opt.experiments_report import summarize, write_report
-from l3gs_opt.instance import Instance, Options
-from l3gs_opt.scene_build import BuildSchedule
-from l3gs_opt.simulate import SIM_METHODS
+from l3gs_opt.experiments.report import summarize, write_report
+from l3gs_opt.problem.instance import Instance, Options
+from l3gs_opt.pipeline.build import BuildSchedule
+from l3gs_opt.simulator.simulation import SIM_METHODS
 
 TINY_BUILD = BuildSchedule(max_width=32, prune_ratio=0.3, recovery_iterations=2, finetune_iterations=2,
                            layer_iterations=2)
@@ -55,7 +55,7 @@ def test_plan_is_deterministic_and_covers_every_method():
     assert [t.klass for t in a.traces] == ["high", "low", "mid"]   # one trace per class
     assert all(len(s) == 1 for s in a.starts) and [p.name for p in a.paths] == ["orbit"]
     for tr, (start,) in zip(a.traces, a.starts):
-        from l3gs_opt.traces import read_bandwidth_trace
+        from l3gs_opt.traces.bandwidth import read_bandwidth_trace
 
         assert 0 <= start <= len(read_bandwidth_trace(tr.path).mbps) - a.window_s
     ids = [t.record_id for t in a.tasks()]

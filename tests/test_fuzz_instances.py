@@ -22,8 +22,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from l3gs_opt import Instance, InstanceError, ItemInstance, ItemInstanceError
-from l3gs_opt.instance_io import load_instance, save_instance
-from l3gs_opt.items_io import load_items, load_problem, save_items
+from l3gs_opt.problem.instance_io import load_instance, save_instance
+from l3gs_opt.problem.items_io import load_items, load_problem, save_items
 
 from test_fuzz_readers import alarm   # the SIGALRM watchdog the other readers' fuzz test uses
 

@@ -22,10 +22,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.poses import (MAX_ANGLE_DEG, MAX_POSITION_M, PoseError, PoseTrace, read_pose_log, synthetic_poses,
+from l3gs_opt.traces.poses import (MAX_ANGLE_DEG, MAX_POSITION_M, PoseError, PoseTrace, read_pose_log, synthetic_poses,
                             write_pose_log)
-from l3gs_opt.scene_io import MIN_QUAT_NORM, SceneError, SplatScene, read_ply, write_ply
-from l3gs_opt.traces import MAX_MBPS, BandwidthTrace, TraceError, bundled_traces, read_bandwidth_trace
+from l3gs_opt.scene.splats import MIN_QUAT_NORM, SceneError, SplatScene, read_ply, write_ply
+from l3gs_opt.traces.bandwidth import MAX_MBPS, BandwidthTrace, TraceError, bundled_traces, read_bandwidth_trace
 from renderer_helpers import random_scene
 
 #: Seconds one example may take before it counts as a hang (the slowest valid read here is ~50 ms).

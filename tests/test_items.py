@@ -2,7 +2,7 @@
 
 Independent references: brute force (:func:`solve_items_brute_force` writes the rules out again),
 the Problem I/II models and brute force on the same instances (the "special cases" proof), and
-:mod:`l3gs_opt.evaluate` for the objective and feasibility of converted schedules.
+:mod:`l3gs_opt.problem.evaluate` for the objective and feasibility of converted schedules.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from l3gs_opt import (InstanceError, ItemInstance, ItemInstanceError, Options, S
                       evaluate_objective, feasibility_violations, hierarchy_items, distill_items,
                       instance_arrivals, item_violations, items_feasible, items_from_dict, items_from_instance,
                       load_items, save_items, solve)
-from l3gs_opt.items_eval import finish_items_solution
-from l3gs_opt.items_presolve import presolve_items
+from l3gs_opt.problem.solution import finish_solution as finish_items_solution
+from l3gs_opt.problem.items_presolve import presolve_items
 from l3gs_opt.models import Backend, build_items_model
 from l3gs_opt.solvers.items import MAX_CLOSED_SETS, closed_sets, solve_items_brute_force
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from l3gs_opt import Options, Status, solve
-from l3gs_opt.synth import synth_instance
+from l3gs_opt.pipeline.synth import synth_instance
 
 from core_helpers import ALL_OPTIONS, option_id, random_instance
 

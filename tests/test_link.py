@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.link import Link, LinkError, max_min_shares, split_bytes
+from l3gs_opt.simulator.link import Link, LinkError, max_min_shares, split_bytes
 
 
 def _reference(bandwidth, budget, request_lists):

@@ -8,11 +8,11 @@ import zlib
 import numpy as np
 import pytest
 
-from l3gs_opt.api import solve
+from l3gs_opt.methods import solve
 from l3gs_opt.errors import SolveError
-from l3gs_opt.evaluate import evaluate_objective, feasibility_violations
-from l3gs_opt.instance import Instance, Options
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.evaluate import evaluate_objective, feasibility_violations
+from l3gs_opt.problem.instance import Instance, Options
+from l3gs_opt.problem.solution import Status
 from l3gs_opt.solvers import solve_brute_force
 from l3gs_opt.solvers.link_dp import link_dp_states, solve_link_dp
 

@@ -15,11 +15,11 @@ from hypothesis import strategies as st
 
 import l3gs_opt
 from l3gs_opt.errors import SolveError
-from l3gs_opt.evaluate import is_feasible
-from l3gs_opt.instance import Instance, Options
+from l3gs_opt.problem.evaluate import is_feasible
+from l3gs_opt.problem.instance import Instance, Options
 from l3gs_opt.models import build_model, solve_ilp, solve_model
-from l3gs_opt.presolve import mckp_options
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.presolve import mckp_options
+from l3gs_opt.problem.solution import Status
 from l3gs_opt.solvers import _mckp
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.mckp import slot_table, solve_bb, solve_dp, solve_fptas, solve_greedy
@@ -247,7 +247,7 @@ def test_empty_and_all_held() -> None:
 
 
 def test_large_l3gs_like_slot_bb_matches_dp() -> None:
-    from l3gs_opt.synth import synth_instance
+    from l3gs_opt.pipeline.synth import synth_instance
 
     inst = synth_instance(objects=400, layers=4, slots=1, seed=5, total_splats=400 * 180)
     inst = Instance(representation=inst.representation, bandwidth=[1_475_000], cost=inst.cost,
@@ -266,7 +266,7 @@ def test_bb_bound_paths_match_dp(monkeypatch, path: str, kind: str) -> None:
     for seed in range(3):
         rng = np.random.default_rng(seed)
         if kind == "l3gs":
-            from l3gs_opt.synth import synth_instance
+            from l3gs_opt.pipeline.synth import synth_instance
 
             base = synth_instance(objects=150, layers=4, slots=1, seed=seed, total_splats=150 * 180)
             inst = Instance(representation="layered", bandwidth=[150_000 * 248 // 180], cost=base.cost,

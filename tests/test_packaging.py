@@ -37,7 +37,7 @@ def test_plain_wheel_contains_and_imports_the_mapped_packages(tmp_path):
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(target), str(wheel)],
                    check=True, timeout=300)
     code = ("import l3gs_opt, l3gs_opt.models, l3gs_opt.solvers, l3gs_opt.renderer, pathlib;"
-            "from l3gs_opt.synth import synth_instance;"
+            "from l3gs_opt.pipeline.synth import synth_instance;"
             "i = synth_instance(objects=3, slots=5);"
             "print(pathlib.Path(l3gs_opt.models.__file__).resolve(), l3gs_opt.solve(i).status)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120,

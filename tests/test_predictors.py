@@ -8,10 +8,10 @@ import warnings
 import numpy as np
 import pytest
 
-from l3gs_opt.cli import main
-from l3gs_opt.poses import (PoseError, PoseMapping, PoseTrace, euler_to_matrix, read_camera_path, read_pose_log,
+from l3gs_opt.cli.main import main
+from l3gs_opt.traces.poses import (PoseError, PoseMapping, PoseTrace, euler_to_matrix, read_camera_path, read_pose_log,
                             synthetic_poses, write_camera_path, write_pose_log)
-from l3gs_opt.predictors import (PredictionError, bandwidth_errors, predict_bandwidth, predict_viewport,
+from l3gs_opt.traces.predictors import (PredictionError, bandwidth_errors, predict_bandwidth, predict_viewport,
                                  viewport_errors, wrap_deg)
 
 LOG = """2024-06-20 17:48:41, Head Position: (0.00, 0.00, 0.00), Head Rotation: (0.00, 0.00, 0.00), Left Controller Position: (0.00, 0.00, 0.00), Left Controller Rotation: (0.00, 0.00, 0.00), Right Controller Position: (0.00, 0.00, 0.00), Right Controller Rotation: (0.00, 0.00, 0.00)

@@ -3,7 +3,7 @@ on ``--pw inf`` or a negative chunk offset (item 8), no silent garbage from huge
 NaN or 10 Hz CSV times, out-of-range backgrounds or chunk paths outside the bundle (item 9), and one
 error line naming the input's own field (item 10).
 
-CLI checks run the real ``l3gs_opt.cli.main``: exit code 2 and exactly one ``error:`` line on
+CLI checks run the real ``l3gs_opt.cli.main.main``: exit code 2 and exactly one ``error:`` line on
 stderr. Readers that could block (FIFOs) run in a daemon thread joined with a timeout; if one ever
 blocks again, the test unblocks it by opening the FIFO for writing and fails.
 """
@@ -21,16 +21,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from l3gs_opt.bundle import BundleError, read_bundle, write_bundle
-from l3gs_opt.cameras import (MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Camera, CameraError, load_any_cameras, load_cameras,
+from l3gs_opt.scene.bundle import BundleError, read_bundle, write_bundle
+from l3gs_opt.scene.cameras import (MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Camera, CameraError, load_any_cameras, load_cameras,
                               read_colmap, save_cameras, write_colmap)
-from l3gs_opt.cli import main
-from l3gs_opt.link import Link, LinkError
-from l3gs_opt.poses import PoseError, PoseTrace, read_camera_path, read_pose_log, synthetic_poses, write_pose_log
-from l3gs_opt.predictors import PredictionError, viewport_errors
-from l3gs_opt.scene_build import BuildError, build_bundle
-from l3gs_opt.scene_io import SceneError, read_ply, write_ply
-from l3gs_opt.traces import MAX_MBPS, TraceError, mbps_to_bytes, read_bandwidth_trace
+from l3gs_opt.cli.main import main
+from l3gs_opt.simulator.link import Link, LinkError
+from l3gs_opt.traces.poses import PoseError, PoseTrace, read_camera_path, read_pose_log, synthetic_poses, write_pose_log
+from l3gs_opt.traces.predictors import PredictionError, viewport_errors
+from l3gs_opt.pipeline.build import BuildError, build_bundle
+from l3gs_opt.scene.splats import SceneError, read_ply, write_ply
+from l3gs_opt.traces.bandwidth import MAX_MBPS, TraceError, mbps_to_bytes, read_bandwidth_trace
 from renderer_helpers import make_camera, random_scene
 
 POSE_LINE = ("2024-06-20 17:48:{s:02d}, Head Position: ({x}, 1.49, 0.52), Head Rotation: (3.92, 351.06, 359.03), "
@@ -184,7 +184,7 @@ def test_item7_colmap_binary_with_absurd_point_count(tmp_path):
 
 
 def test_item7_size_limits_of_text_readers(world, tmp_path, monkeypatch):
-    import l3gs_opt.traces as traces
+    import l3gs_opt.traces.bandwidth as traces
 
     monkeypatch.setattr(traces, "MAX_TRACE_FILE_BYTES", 100)
     (tmp_path / "long.txt").write_text("5\n" * 100)

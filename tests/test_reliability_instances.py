@@ -21,14 +21,14 @@ import numpy as np
 import pytest
 
 from l3gs_opt import Instance, InstanceError, ItemInstance, ItemInstanceError, SolveError, solve
-from l3gs_opt.api import check_slot, check_time_limit
-from l3gs_opt.cli import main
+from l3gs_opt.methods import check_slot, check_time_limit
+from l3gs_opt.cli.main import main
 from l3gs_opt.input_files import MAX_JSON_DEPTH
-from l3gs_opt.instance_io import (MAX_JSON_BYTES, MAX_NPZ_BYTES, instance_from_dict, load_instance, save_instance)
-from l3gs_opt.items import items_from_instance
-from l3gs_opt.items_io import items_from_dict, load_items, load_problem, save_items
+from l3gs_opt.problem.instance_io import (MAX_JSON_BYTES, MAX_NPZ_BYTES, instance_from_dict, load_instance, save_instance)
+from l3gs_opt.problem.items import items_from_instance
+from l3gs_opt.problem.items_io import items_from_dict, load_items, load_problem, save_items
 from l3gs_opt.solvers.items import solve_items
-from l3gs_opt.synth import MAX_SYNTH_ENTRIES, synth_instance
+from l3gs_opt.pipeline.synth import MAX_SYNTH_ENTRIES, synth_instance
 
 
 def base() -> dict:
@@ -222,7 +222,7 @@ def test_item7_json_over_the_size_limit_is_refused_before_reading(tmp_path):
 
 
 def test_item7_writers_refuse_what_the_readers_would(tmp_path, monkeypatch):
-    import l3gs_opt.instance_io as instance_io
+    import l3gs_opt.problem.instance_io as instance_io
 
     inst = instance_from_dict(base())
     monkeypatch.setattr(instance_io, "MAX_JSON_BYTES", 100)

@@ -18,14 +18,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from l3gs_opt import Instance, InstanceError, Options, Status, is_feasible, solve
-from l3gs_opt.cli import main as cli_main
-from l3gs_opt.instance import MAX_UTILITY_TOTAL
-from l3gs_opt.items import ItemInstance, ItemInstanceError
-from l3gs_opt.knapsack_sets import load_knapsack
+from l3gs_opt.cli.main import main as cli_main
+from l3gs_opt.problem.instance import MAX_UTILITY_TOTAL
+from l3gs_opt.problem.items import ItemInstance, ItemInstanceError
+from l3gs_opt.problem.knapsack_sets import load_knapsack
 from l3gs_opt.models import build_model
 from l3gs_opt.models.linear import BYTE_DIGIT, BYTE_SPLIT_ABOVE
-from l3gs_opt.solution import GAP_TOL, finish_solution
-from l3gs_opt.suites import STIFF_CASES, _stiff
+from l3gs_opt.problem.solution import GAP_TOL, finish_solution
+from l3gs_opt.bench.suites import STIFF_CASES, _stiff
 
 BACKENDS = ("highs", "cbc", "scip", "cpsat")
 KNAPSACK = Path(__file__).resolve().parents[2] / "shared" / "data" / "reference" / "knapsack"

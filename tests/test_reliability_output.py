@@ -21,12 +21,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import l3gs_opt
-from l3gs_opt.cli import main
-from l3gs_opt.instance import Options
+from l3gs_opt.cli.main import main
+from l3gs_opt.problem.instance import Options
 from l3gs_opt.jsonout import JsonOutputError, dumps, to_jsonable
 from l3gs_opt.records import (OutputLock, OutputLockedError, RecordFileError, RecordLog, read_records,
                               repair_torn_tail)
-from l3gs_opt.synth import synth_instance
+from l3gs_opt.pipeline.synth import synth_instance
 
 REPO = Path(__file__).resolve().parents[1]
 TRACE = REPO / "l3gs_opt" / "data" / "traces" / "lumos-throughput-mid-11.txt"
@@ -206,7 +206,7 @@ def test_item1_nonfinite_numbers_are_null(values):
 
 # ------------------------------------------------------------------------------ item 9: silent garbage
 def test_item9_predict_json_with_nonfinite_errors_is_strict_json(capsys, monkeypatch):
-    import l3gs_opt.predictors as predictors
+    import l3gs_opt.traces.predictors as predictors
 
     monkeypatch.setattr(predictors, "bandwidth_errors",
                         lambda *a, **k: {"mae_mbps": float("nan"), "worst_mbps": float("inf"),
@@ -234,7 +234,7 @@ def test_item9_bench_empty_plans_are_errors(tmp_path, capsys, argv, field):
 
 
 def test_item9_run_bench_refuses_an_empty_task_list(tmp_path):
-    from l3gs_opt.bench import BenchError, run_bench
+    from l3gs_opt.bench.run import BenchError, run_bench
 
     with pytest.raises(BenchError, match="^tasks: nothing to run"):
         run_bench([], tmp_path / "r.jsonl", progress=False)
@@ -257,8 +257,8 @@ def test_item8_bench_out_on_a_file(tmp_path, capsys):
     assert code == 2 and one_error_line(err).startswith("error: --out: ")
     assert afile.read_text() == "not a folder\n"
     # The library refuses the same paths by name: a folder as the records file, a file as its folder.
-    from l3gs_opt.bench import BenchTask, run_bench
-    from l3gs_opt.suites import suite_specs
+    from l3gs_opt.bench.run import BenchTask, run_bench
+    from l3gs_opt.bench.suites import suite_specs
 
     task = BenchTask(suite_specs("stiff")[0], "greedy")
     with pytest.raises(RecordFileError, match="is a folder"):
@@ -362,7 +362,7 @@ def test_item2_bench_resume_after_a_torn_last_line(tmp_path, capsys):
 
 def test_item2_simulate_records_share_the_writer(tmp_path):
     """simulate's RecordWriter: a torn last line repaired, a bad line in the middle refused."""
-    from l3gs_opt.sim_records import RecordWriter
+    from l3gs_opt.simulator.records import RecordWriter
 
     slots = tmp_path / "slots.jsonl"
     keep = {"method": "sort", "solver": None, "slot": 0, "run_id": "x"}
@@ -445,7 +445,7 @@ def test_item5_forked_children_do_not_keep_the_lock(tmp_path):
 
 
 def test_item5_simulate_same_method_refused_other_methods_allowed(tmp_path):
-    from l3gs_opt.sim_records import RecordWriter
+    from l3gs_opt.simulator.records import RecordWriter
 
     first = RecordWriter(tmp_path, "l3gs", "bb", run="r")
     with pytest.raises(OutputLockedError, match="simulate of method 'l3gs', solver 'bb'"):
@@ -462,7 +462,7 @@ def test_item5_simulate_same_method_refused_other_methods_allowed(tmp_path):
 
 
 def test_item5_experiments_refuse_a_second_writer(tmp_path, capsys):
-    from l3gs_opt.experiments import make_plan, run_experiments
+    from l3gs_opt.experiments.run import make_plan, run_experiments
 
     lock = OutputLock(tmp_path / "runs.jsonl.lock", field="test").acquire()
     try:
@@ -500,8 +500,8 @@ _JSON_VALUES = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-5, 
 @given(key=st.sampled_from(sorted(_bench_record()) + ["extra"]), value=_JSON_VALUES, drop=st.booleans())
 def test_item8_report_on_altered_records_is_a_report_or_a_named_error(key, value, drop):
     """A bench record with one value replaced (or removed): the report's summary, or BenchError."""
-    from l3gs_opt.bench import BenchError, check_records
-    from l3gs_opt.report import annotate, summarise
+    from l3gs_opt.bench.run import BenchError, check_records
+    from l3gs_opt.bench.report import annotate, summarise
 
     good = _bench_record()
     other = dict(good, record_id="stiff/i/greedy", method="greedy", status="feasible", objective=4.0, bound=None)

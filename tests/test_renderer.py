@@ -20,7 +20,7 @@ from l3gs_opt.renderer import (covariances_from_params, project_gaussians, raste
                                render_scene)
 from l3gs_opt.renderer._kernels import HAVE_NUMBA
 from l3gs_opt.renderer._reference import _project_reference, _render_reference
-from l3gs_opt.scene_io import SplatScene
+from l3gs_opt.scene.splats import SplatScene
 from renderer_helpers import make_camera, params_of, psnr_db, random_scene
 
 PSNR_MIN_DB = 50.0

@@ -1,4 +1,4 @@
-"""CLI handlers ``render``, ``scene make``, ``scene info`` (through ``l3gs_opt.cli_scene.register``)."""
+"""CLI handlers ``render``, ``scene make``, ``scene info`` (through ``l3gs_opt.cli.scene.register``)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from l3gs_opt.cameras import save_cameras, write_blender, write_colmap
-from l3gs_opt.cli_scene import register
+from l3gs_opt.scene.cameras import save_cameras, write_blender, write_colmap
+from l3gs_opt.cli.scene import register
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.renderer import render_scene
-from l3gs_opt.scene_io import read_ply, write_ply
+from l3gs_opt.scene.splats import read_ply, write_ply
 from renderer_helpers import make_camera, random_scene
 
 

@@ -16,10 +16,10 @@ from scipy.optimize import linprog
 
 import l3gs_opt
 from l3gs_opt.errors import SolveError
-from l3gs_opt.evaluate import is_feasible
-from l3gs_opt.instance import Instance, Options
+from l3gs_opt.problem.evaluate import is_feasible
+from l3gs_opt.problem.instance import Instance, Options
 from l3gs_opt.models import solve_ilp
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.solution import Status
 from l3gs_opt.solvers import slope_fractional_value
 from l3gs_opt.solvers.brute_force import solve_brute_force
 
@@ -117,7 +117,7 @@ def test_strict_layers_one_layer_per_slot() -> None:
 
 
 def _independent_lp(inst: Instance) -> float:
-    """LP relaxation of Problem I (same-slot availability and layers), written from DESIGN.md
+    """LP relaxation of Problem I (same-slot availability and layers), written from docs/design.md
     with y[j,l,t] only: x[t] = y[t] - y[t-1] >= 0, budgets, y[l] <= y[l-1]."""
     T, J, L = inst.T, inst.J, inst.L
     idx = {k: i for i, k in enumerate(itertools.product(range(J), range(L), range(T)))}
@@ -202,7 +202,7 @@ def test_bound_can_be_skipped_and_times_are_reported() -> None:
 
 
 def test_rolling_bb_l3gs_like_scale_against_ilp() -> None:
-    from l3gs_opt.synth import synth_instance
+    from l3gs_opt.pipeline.synth import synth_instance
 
     inst = synth_instance(objects=30, layers=4, slots=8, seed=3, total_splats=30 * 180)
     exact = solve_ilp(inst, backend="highs", time_limit_s=60)

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 
 from l3gs_opt import InstanceError, load_instance, solve
-from l3gs_opt.bundle import split_layers, write_bundle
-from l3gs_opt.cameras import camera_to_dict, look_at
-from l3gs_opt.poses import PoseTrace, write_pose_log
-from l3gs_opt.scene_instance import Z_UP_MAPPING, instance_from_bundle, viewer_cameras
-from l3gs_opt.traces import mbps_to_bytes, read_bandwidth_trace
-from l3gs_opt.utility import splat_utility
+from l3gs_opt.scene.bundle import split_layers, write_bundle
+from l3gs_opt.scene.cameras import camera_to_dict, look_at
+from l3gs_opt.traces.poses import PoseTrace, write_pose_log
+from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING, instance_from_bundle, viewer_cameras
+from l3gs_opt.traces.bandwidth import mbps_to_bytes, read_bandwidth_trace
+from l3gs_opt.pipeline.splat_utility import splat_utility
 from renderer_helpers import random_scene
 
-from l3gs_opt.cameras import Camera
+from l3gs_opt.scene.cameras import Camera
 
 SLOTS = 3
 
@@ -112,10 +112,10 @@ def test_bad_paths_are_named_errors(layered, tmp_path):
 def test_cli_from_scene(layered, tmp_path):
     _, bundle, cams = layered
     out = tmp_path / "inst.json"
-    run = subprocess.run([sys.executable, "-m", "l3gs_opt.cli", "instance", "from-scene", str(bundle), "--path",
+    run = subprocess.run([sys.executable, "-m", "l3gs_opt.cli.main", "instance", "from-scene", str(bundle), "--path",
                           str(cams), "--window", f"0:{SLOTS}", "-o", str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert load_instance(out).T == SLOTS
-    bad = subprocess.run([sys.executable, "-m", "l3gs_opt.cli", "instance", "from-scene", str(bundle), "--path",
+    bad = subprocess.run([sys.executable, "-m", "l3gs_opt.cli.main", "instance", "from-scene", str(bundle), "--path",
                           str(cams), "--window", "0:0", "-o", str(out)], capture_output=True, text=True)
     assert bad.returncode == 2 and "window" in bad.stderr

@@ -7,7 +7,7 @@ import pytest
 from plyfile import PlyData, PlyElement
 
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.scene_io import SceneError, SplatScene, bytes_per_splat, read_ply, write_ply
+from l3gs_opt.scene.splats import SceneError, SplatScene, bytes_per_splat, read_ply, write_ply
 from renderer_helpers import random_scene
 
 

@@ -1,4 +1,4 @@
-"""Procedural scenes (``l3gs_opt.scene_make``): deterministic, segmented, and rich enough that
+"""Procedural scenes (``l3gs_opt.scene.procedural``): deterministic, segmented, and rich enough that
 dropping splats visibly hurts SSIM."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from l3gs_opt.camera_paths import orbit_path, walk_path
+from l3gs_opt.scene.camera_paths import orbit_path, walk_path
 from l3gs_opt.renderer import render_scene, ssim
-from l3gs_opt.scene_io import SceneError
-from l3gs_opt.scene_make import make_scene
+from l3gs_opt.scene.splats import SceneError
+from l3gs_opt.scene.procedural import make_scene
 
 
 def test_deterministic_and_segmented():
@@ -27,7 +27,7 @@ def test_deterministic_and_segmented():
 
 
 def test_room_parts_split_the_room_by_surface_and_keep_the_splats():
-    from l3gs_opt.scene_make import ROOM_HALF, ROOM_HEIGHT, ROOM_PARTS
+    from l3gs_opt.scene.procedural import ROOM_HALF, ROOM_HEIGHT, ROOM_PARTS
 
     whole = make_scene(4000, objects=3, seed=2)
     parts = make_scene(4000, objects=3, seed=2, room_parts=True)

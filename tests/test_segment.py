@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from l3gs_opt.cli_scene import register
-from l3gs_opt.scene_io import SceneError, read_ply, write_ply
-from l3gs_opt.segment import segment_scene
+from l3gs_opt.cli.scene import register
+from l3gs_opt.scene.splats import SceneError, read_ply, write_ply
+from l3gs_opt.scene.segment import segment_scene
 from renderer_helpers import random_scene
 
 

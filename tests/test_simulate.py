@@ -13,20 +13,20 @@ import json
 import numpy as np
 import pytest
 
-from l3gs_opt.bundle import read_bundle, write_bundle
-from l3gs_opt.camera_paths import orbit_path
-from l3gs_opt.cli import main
+from l3gs_opt.scene.bundle import read_bundle, write_bundle
+from l3gs_opt.scene.camera_paths import orbit_path
+from l3gs_opt.cli.main import main
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.poses import synthetic_poses, write_pose_log
+from l3gs_opt.traces.poses import synthetic_poses, write_pose_log
 from l3gs_opt.renderer.metrics import ssim
 from l3gs_opt.renderer.render import render_scene
 from l3gs_opt.renderer.distill import distill_sh
-from l3gs_opt.scene_build import hierarchy_parents
-from l3gs_opt.scene_make import make_scene
-from l3gs_opt.sim_render import RenderCache, render_image
-from l3gs_opt.simulate import (ItemSlotView, MethodSpec, SimConfig, Simulation, SimulationError, SlotView,
+from l3gs_opt.pipeline.build import hierarchy_parents
+from l3gs_opt.scene.procedural import make_scene
+from l3gs_opt.simulator.render import RenderCache, render_image
+from l3gs_opt.simulator.simulation import (ItemSlotView, MethodSpec, SimConfig, Simulation, SimulationError, SlotView,
                                build_catalog, method_spec, order_requests)
-from l3gs_opt.utility import splat_utility
+from l3gs_opt.pipeline.splat_utility import splat_utility
 
 SLOTS = 5
 BPS = 92            # bytes per splat at SH degree 1 (56 + 36)
@@ -256,7 +256,7 @@ def test_slot_view_instance_accounting():
 
 
 def test_catalog_units_match_manifest_chunks(world):
-    from l3gs_opt.bundle import read_bundle
+    from l3gs_opt.scene.bundle import read_bundle
 
     bundle = read_bundle(world["root"] / "sort")
     by_object = build_catalog(bundle, "object")
@@ -355,7 +355,7 @@ def test_cli_simulate_error_is_one_line(world, capsys):
 # ---------------------------------------------------------------------------------------- distill
 def test_upgrade_fraction_proxies():
     from l3gs_opt.renderer.sh import eval_sh
-    from l3gs_opt.sim_catalog import upgrade_fraction
+    from l3gs_opt.simulator.catalog import upgrade_fraction
 
     rng = np.random.default_rng(0)
     full = rng.normal(size=(50, 9, 3))
@@ -449,7 +449,7 @@ def test_distill_shows_compact_sh_until_upgraded(world):
             out = [(j, l, 0) for j in range(J) for l in range(L) if not taken[j, l, 0]]
             return out + [(0, 0, 1)] if not taken[0, 0, 1] else out
 
-    from l3gs_opt.sim_client import Client, drive
+    from l3gs_opt.simulator.client import Client, drive
 
     config = SimConfig(width=64, height=48, samples_per_slot=1, viewport="oracle")
     sim = _sim(world, "distill", [10**9], config)
@@ -528,7 +528,7 @@ def test_replanning_never_worse_within_a_slot(world):
     each quarter with the bytes measured is never worse at the slot's end (the plan it replaces
     stays feasible at every re-plan, and the estimate of the bytes left is exact), and here it is
     better at least once."""
-    from l3gs_opt.sim_client import Client, drive
+    from l3gs_opt.simulator.client import Client, drive
 
     better = 0
     for budget in (8_000, 20_000, 40_000, 60_000, 100_000):
@@ -568,7 +568,7 @@ def _strip(record):
 
 
 def test_shared_link_one_client_is_a_plain_run(world):
-    from l3gs_opt.sim_shared import run_shared
+    from l3gs_opt.simulator.shared import run_shared
 
     bandwidth = [30_000, 0, 45_000, 12_000, 30_000]
     sim = _sim(world, "sort", bandwidth)
@@ -581,7 +581,7 @@ def test_shared_link_one_client_is_a_plain_run(world):
 
 
 def test_shared_link_splits_the_trace(world, tmp_path):
-    from l3gs_opt.sim_shared import run_shared, simulate_shared
+    from l3gs_opt.simulator.shared import run_shared, simulate_shared
 
     bandwidth = [30_000, 0, 45_000, 12_000, 30_000]
     walker = write_pose_log(synthetic_poses("walk", seconds=SLOTS + 1, rate_hz=30, seed=1), tmp_path / "walk.log")
@@ -611,7 +611,7 @@ class _Stop(Exception):
 
 def _interrupt_at(monkeypatch, slot):
     """Make every built-in scheduler stop the run when it is asked about ``slot``."""
-    from l3gs_opt import sim_schedulers
+    from l3gs_opt.simulator import schedulers as sim_schedulers
 
     for cls in (sim_schedulers.SlotSolverScheduler, sim_schedulers.HorizonScheduler):
         original = cls.requests
@@ -678,7 +678,7 @@ def test_resume_refuses_other_inputs_and_altered_records(world, tmp_path):
 
 # ---------------------------------------------------------------------------------------- render cache
 def test_reference_rendered_once_per_camera(world, tmp_path):
-    from l3gs_opt.sim_render import render_backend
+    from l3gs_opt.simulator.render import render_backend
 
     cache = RenderCache()
     bandwidth = [30_000] * 3
@@ -700,7 +700,7 @@ def test_reference_rendered_once_per_camera(world, tmp_path):
 
 
 def test_client_view_not_rendered_again_when_nothing_new(world):
-    from l3gs_opt.poses import PoseTrace
+    from l3gs_opt.traces.poses import PoseTrace
 
     n = 30 * (SLOTS + 1)
     still = PoseTrace(time_s=np.arange(n) / 30.0, position=np.tile([3.0, 1.6, 0.0], (n, 1)),
@@ -725,7 +725,7 @@ def test_cli_simulate_resume_and_new_options(world, tmp_path, monkeypatch, capsy
     whole = json.loads(capsys.readouterr().out)
     assert whole["config"]["substeps"] == 2 and whole["config"]["sh_upgrade_utility"] == 0.3
     assert len(list((tmp_path / "whole" / "reference-cache").glob("*.npy"))) == 4
-    from l3gs_opt.sim_schedulers import SlotSolverScheduler
+    from l3gs_opt.simulator.schedulers import SlotSolverScheduler
 
     with monkeypatch.context() as m:
         def stop(self, view, _original=SlotSolverScheduler.requests):
@@ -733,7 +733,7 @@ def test_cli_simulate_resume_and_new_options(world, tmp_path, monkeypatch, capsy
                 raise KeyboardInterrupt
             return _original(self, view)
 
-        m.setattr("l3gs_opt.sim_schedulers.SlotSolverScheduler.requests", stop)
+        m.setattr("l3gs_opt.simulator.schedulers.SlotSolverScheduler.requests", stop)
         assert main(args + ["--out", str(tmp_path / "cut")]) == 130
     capsys.readouterr()
     assert main(args + ["--out", str(tmp_path / "cut"), "--resume"]) == 0

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import l3gs_opt
-from l3gs_opt.api import method_names
+from l3gs_opt.methods import method_names
 from l3gs_opt.errors import SolveError
-from l3gs_opt.instance import Instance
+from l3gs_opt.problem.instance import Instance
 from l3gs_opt.solvers.registry import names, resolve
 
 
@@ -48,7 +48,7 @@ def test_solve_passes_backend_and_ignores_unused_options() -> None:
 
 
 def test_cli_solve_reaches_the_solvers(tmp_path, capsys) -> None:
-    from l3gs_opt.cli import main
+    from l3gs_opt.cli.main import main
 
     inst = Instance(representation="layered", bandwidth=[3, 3], cost=[[2, 2]], utility=np.ones((2, 1, 2)))
     path = tmp_path / "inst.json"

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from l3gs_opt import Instance, Options, Status, is_feasible, solve
-from l3gs_opt.solution import finish_solution
+from l3gs_opt.problem.solution import finish_solution
 
 BACKENDS = ("cbc", "highs", "cpsat", "scip")
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from l3gs_opt.traces import TraceError, bundled_traces, mbps_to_bytes, read_bandwidth_trace
+from l3gs_opt.traces.bandwidth import TraceError, bundled_traces, mbps_to_bytes, read_bandwidth_trace
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "bandwidth" / "lumos5g"
 
@@ -59,7 +59,7 @@ def test_mbps_to_bytes():
 
 
 def test_synthetic_bandwidth_mean_outages_and_determinism():
-    from l3gs_opt.traces import synthetic_bandwidth
+    from l3gs_opt.traces.bandwidth import synthetic_bandwidth
 
     a = synthetic_bandwidth(600, 11.8, outage_rate=0.05, seed=3)
     b = synthetic_bandwidth(600, 11.8, outage_rate=0.05, seed=3)
@@ -87,7 +87,7 @@ def test_synthetic_bandwidth_mean_outages_and_determinism():
                                        ({"variability": float("nan")}, "variability"),
                                        ({"outage_s": (3, 2)}, "outage_s")])
 def test_synthetic_bandwidth_bad_arguments(kw, match):
-    from l3gs_opt.traces import TraceError, synthetic_bandwidth
+    from l3gs_opt.traces.bandwidth import TraceError, synthetic_bandwidth
 
     with pytest.raises(TraceError, match=match):
         synthetic_bandwidth(**kw)

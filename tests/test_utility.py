@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from l3gs_opt.camera_paths import orbit_path, walk_path
-from l3gs_opt.cameras import Camera, look_at
+from l3gs_opt.scene.camera_paths import orbit_path, walk_path
+from l3gs_opt.scene.cameras import Camera, look_at
 from l3gs_opt.renderer import HAVE_NUMBA
-from l3gs_opt.scene_io import SplatScene
-from l3gs_opt.scene_make import make_scene
-from l3gs_opt.utility import (UtilityError, UtilityScene, UtilityTable, _look_rotation, build_utility_table,
+from l3gs_opt.scene.splats import SplatScene
+from l3gs_opt.scene.procedural import make_scene
+from l3gs_opt.pipeline.splat_utility import (UtilityError, UtilityScene, UtilityTable, _look_rotation, build_utility_table,
                               grid_positions, object_layer_utility, splat_utility)
 
 needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="the compiled backend needs numba")
@@ -135,7 +135,7 @@ def test_compiled_loop_matches_the_torch_reference(layered):
 @needs_numba
 def test_early_cull_changes_nothing(layered):
     """The bound that skips off-screen splats must never skip one the rasteriser keeps."""
-    from l3gs_opt.utility import _numba_pass
+    from l3gs_opt.pipeline.splat_utility import _numba_pass
 
     # Large, elongated splats just outside the view, and splats far below a pixel, whose radius is
     # the dilation's alone (3 pixels): there the bound is tightest, and a margin 1 pixel too small

@@ -19,8 +19,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import BackendUnavailableError, SolveError
-from l3gs_opt.instance import scale_exponent
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.instance import scale_exponent
+from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
 
@@ -102,10 +102,6 @@ def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: f
     bound = None if result.bound is None else math.ldexp(result.bound, -exponent)
     return dataclasses.replace(result, bound=bound,
                                details={**result.details, "objective_prescale_log2": exponent})
-
-
-def finite_or(value: float, default: float) -> float:
-    return float(value) if np.isfinite(value) else default
 
 
 def timed_out(start: float, time_limit_s: float | None) -> bool:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pulp
 
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
 from . import BackendResult

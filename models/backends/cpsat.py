@@ -18,7 +18,7 @@ import numpy as np
 from ortools.sat.python import cp_model
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
 from . import BackendResult

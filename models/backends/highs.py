@@ -18,7 +18,7 @@ from typing import Any
 import highspy
 import numpy as np
 
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
 from . import BackendResult

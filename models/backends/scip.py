@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from ortools.linear_solver import pywraplp
 
-from l3gs_opt.solution import Status
+from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
 from . import BackendResult, timed_out

@@ -1,0 +1,2 @@
+"""Benchmark suites, the run with its records, and the report.
+"""

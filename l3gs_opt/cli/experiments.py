@@ -1,0 +1,109 @@
+"""CLI subcommand ``experiments``: the paper's evaluation on procedural scenes, resumable, with a report.
+
+Wire into the main parser with ``register(subparsers)``. Bad input raises
+:class:`l3gs_opt.errors.L3gsError` subclasses, which the main CLI prints as one line (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+__all__ = ["register"]
+
+
+def _list(text: str | None) -> list[str] | None:
+    if text is None:
+        return None
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def _cmd_experiments(args: argparse.Namespace) -> int:
+    from l3gs_opt.experiments.run import RUNS_FILE, ExperimentError, SceneSpec, make_plan, run_experiments
+    from l3gs_opt.experiments.report import write_report
+
+    out = Path(args.out)
+    for option, folder in (("--out", args.out), ("--cache", args.cache)):
+        if folder and Path(folder).exists() and not Path(folder).is_dir():
+            raise ExperimentError(option, f"{folder} is a file: expected a folder")
+    if args.report_only:
+        if not (out / RUNS_FILE).exists():
+            raise ExperimentError("--out", f"{out / RUNS_FILE}: no such results file (run without --report-only first)")
+        print(f"report: {write_report(out / RUNS_FILE, out)}")
+        return 0
+    traces = args.traces
+    if traces is not None and not Path(traces).is_dir():
+        traces = _list(traces)
+    scenes = None
+    if args.splats is not None or args.objects is not None or args.room_parts:
+        splats = args.splats if args.splats is not None else (8000 if args.quick else 20_000)
+        if splats < 1000:
+            raise ExperimentError("--splats", f"{splats}: must be >= 1000")
+        objects = args.objects if args.objects is not None else 4
+        if not 1 <= objects <= 12:
+            raise ExperimentError("--objects", f"{objects}: must be in 1..12")
+        # The name keys the bundle cache: a different segmentation is a different scene.
+        name = f"room{splats // 1000}k" + (f"-o{objects}" if objects != 4 else "") + \
+            ("-parts" if args.room_parts else "")
+        scenes = [SceneSpec(name, splats, objects=objects, sh_degree=1, seed=0, room_parts=args.room_parts)]
+    plan = make_plan(quick=args.quick, scenes=scenes, variants=_list(args.variants), traces=traces,
+                     starts=args.starts, window_s=args.window, paths=_list(args.paths), methods=_list(args.methods),
+                     ablations=_list(args.ablations), ablation_methods=_list(args.ablation_methods),
+                     width=args.width, height=args.height, ceiling_time_limit_s=args.time_limit,
+                     ceiling_check_s=args.check_time, seed=args.seed)
+    n = len(plan.tasks())
+    load = os.getloadavg()[0]
+    print(f"plan: {n} records ({len(plan.scenes)} scene(s), {len(plan.windows())} window(s), {len(plan.paths)} "
+          f"path(s), methods {', '.join(m for m, _ in plan.methods)}); load {load:.2f}", flush=True)
+    for note in plan.notes:
+        print(f"note: {note}")
+    t0 = time.perf_counter()
+    runs = run_experiments(plan, out, resume=args.resume, cache_dir=args.cache, progress=not args.no_progress)
+    report = write_report(runs, out)
+    print(f"records: {runs}\nreport: {report}\ntime: {time.perf_counter() - t0:.0f} s (load {load:.2f} -> "
+          f"{os.getloadavg()[0]:.2f})")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Add ``experiments`` to an argparse subparsers object."""
+    p = subparsers.add_parser("experiments", help="the paper's evaluation: SSIM per method over real traces, "
+                                                  "ablations, latency, exact ceilings; runs.jsonl + report.md")
+    p.add_argument("--quick", action="store_true",
+                   help="one 8k-splat room, one trace per class, one window, one path, 128x96 (~15 min on 2 cores)")
+    p.add_argument("--out", default="experiments-out", help="folder for runs.jsonl, report.md and the plots")
+    p.add_argument("--cache", default=None, help="folder for teachers, bundles and pose logs (default OUT/cache)")
+    p.add_argument("--resume", action="store_true", help="continue OUT/runs.jsonl, skipping recorded runs")
+    p.add_argument("--report-only", action="store_true", help="rewrite report.md and the plots from OUT/runs.jsonl")
+    p.add_argument("--traces", default=None,
+                   help="comma-separated trace names or files, or a folder of traces (default: every Lumos5G "
+                        "trace of ../shared/data, else the bundled ones; --quick: one per class)")
+    p.add_argument("--starts", type=int, default=None, help="random window starts per trace (default 3, quick 1)")
+    p.add_argument("--window", type=int, default=60, help="window length, seconds (default 60)")
+    p.add_argument("--paths", default=None, help="comma-separated: orbit, orbit-log, turns, turns-log "
+                                                 "(default orbit,turns-log; quick: orbit)")
+    p.add_argument("--variants", default=None,
+                   help="bundle variants to build: layered, sort, separate, distill, hierarchy (default all)")
+    p.add_argument("--methods", default=None, help="comma-separated simulator methods (default: every one of "
+                                                   "l3gs-opt simulate, each on its bundle)")
+    p.add_argument("--ablations", default=None,
+                   help="conditions: true_bandwidth, true_viewport, true_both, nofill, nofill_true_... (default all)")
+    p.add_argument("--ablation-methods", default=None,
+                   help="methods run under the ablations (default: l3gs; full runs: every predicting method)")
+    p.add_argument("--splats", type=int, default=None, help="one room of this many splats instead of the default")
+    p.add_argument("--objects", type=int, default=None,
+                   help="solids in the room, 1..12 (default 4); with --splats or --room-parts")
+    p.add_argument("--room-parts", action="store_true",
+                   help="the room's floor, ceiling and four walls as six objects of their own (a finer "
+                        "segmentation: no chunk holds most of the bytes)")
+    p.add_argument("--width", type=int, default=None, help="render width in pixels (default 160, quick 128)")
+    p.add_argument("--height", type=int, default=None, help="render height in pixels (default 120, quick 96)")
+    p.add_argument("--time-limit", type=float, default=None, metavar="S",
+                   help="seconds per ILP ceiling when the exact DP is too large (default 60, quick 20)")
+    p.add_argument("--check-time", type=float, default=None, metavar="S",
+                   help="seconds of the ilp/highs cross-check of each DP ceiling, 0 = none (default 10, quick 3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random window starts")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_cmd_experiments)

@@ -1,0 +1,2 @@
+"""The paper's experiments: plan, run and report.
+"""

@@ -1,0 +1,199 @@
+"""Objective and feasibility of a schedule, computed from the instance alone.
+
+Nothing here trusts a solver: the objective is re-evaluated in float64 with ``math.fsum``
+(exactly rounded sums, so utilities spanning 1e-9..1e9 do not lose the small terms to
+summation order), and feasibility is checked in exact integer bytes (Python ints).
+
+A schedule is a collection of arrivals ``(j, l, t)``: chunk (j, l) arrives in slot t (0-based).
+For the single-slot problem (``slot=t``) every arrival is in slot t and the objective is the
+utility shown at slot t, held items included.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from l3gs_opt.problem.instance import Instance
+
+__all__ = [
+    "Arrival",
+    "normalize_arrivals",
+    "arrival_slots",
+    "evaluate_objective",
+    "feasibility_violations",
+    "is_feasible",
+    "repair_schedule",
+]
+
+Arrival = tuple[int, int, int]
+NEVER = -1
+
+
+def normalize_arrivals(arrivals: Iterable[Sequence[int]]) -> tuple[Arrival, ...]:
+    """Sorted tuple of ``(j, l, t)`` int triples (by slot, object, layer)."""
+    out = [(int(a[0]), int(a[1]), int(a[2])) for a in arrivals]
+    return tuple(sorted(out, key=lambda a: (a[2], a[0], a[1])))
+
+
+def arrival_slots(instance: Instance, arrivals: Iterable[Arrival]) -> np.ndarray:
+    """``[J, L]`` array: the slot each chunk arrives in, or -1 (never). Assumes a valid schedule."""
+    slots = np.full((instance.J, instance.L), NEVER, dtype=np.int64)
+    for j, l, t in arrivals:
+        slots[j, l] = t
+    return slots
+
+
+def _available(instance: Instance, slots: np.ndarray, slot: int | None) -> np.ndarray:
+    """Boolean ``[T, J, L]`` (or ``[1, J, L]`` for one slot): chunk shown at slot t."""
+    if slot is not None:
+        return (instance.held | (slots == slot))[None]
+    t = np.arange(instance.T)[:, None, None]
+    arrived = slots[None] >= 0
+    if instance.options.availability == "same_slot":
+        ok = arrived & (slots[None] <= t)
+    else:
+        ok = arrived & (slots[None] < t)
+    return ok | instance.held[None]
+
+
+def evaluate_objective(instance: Instance, arrivals: Iterable[Arrival], *, slot: int | None = None) -> float:
+    """Total utility of the schedule, held chunks included.
+
+    Layered: ``sum_t sum_{j,l} dU[t,j,l] * shown[t,j,l]``. Separate: ``sum_t sum_j max(0,
+    max_l U[t,j,l] * shown[t,j,l])`` (the best version held is shown). With ``slot=t`` only
+    slot t counts and a chunk arriving in t is shown at t.
+    """
+    slots = arrival_slots(instance, arrivals)
+    shown = _available(instance, slots, slot)
+    utility = instance.utility[slot:slot + 1] if slot is not None else instance.utility
+    if instance.layered:
+        values = utility[shown]
+    else:
+        values = np.where(shown, utility, 0.0).max(axis=2, initial=0.0).ravel()
+    return math.fsum(values.tolist())
+
+
+def budget_violations(spent: Mapping[int, int], bandwidth: Sequence[int], *, cumulative: bool) -> list[str]:
+    """Budget rules broken by ``spent[t]`` bytes arriving in slot t, in exact integers: per slot,
+    or (``cumulative``) the bytes by slot t against the bandwidth of slots 0..t (first breach only).
+    Shared by both instance forms."""
+    bandwidth = [int(b) for b in bandwidth]
+    problems: list[str] = []
+    if not cumulative:
+        for t in sorted(spent):
+            if 0 <= t < len(bandwidth) and spent[t] > bandwidth[t]:
+                problems.append(f"slot {t}: {spent[t]} bytes arrive, budget is {bandwidth[t]} bytes")
+        return problems
+    used = budget = 0
+    for t, b in enumerate(bandwidth):
+        used += spent.get(t, 0)
+        budget += b
+        if used > budget:
+            problems.append(f"slots 0..{t}: {used} bytes arrive, cumulative budget is {budget} bytes")
+            break
+    return problems
+
+
+def first_breach(spent: Mapping[int, int], bandwidth: Sequence[int], *, cumulative: bool) -> int:
+    """The first slot whose budget ``spent`` breaks (per slot, or cumulative up to it); the last slot
+    when none does. The repairs of both instance forms drop a chunk arriving there (or, cumulative,
+    by then)."""
+    if not cumulative:
+        return next((t for t in sorted(spent) if spent[t] > int(bandwidth[t])), len(bandwidth) - 1)
+    used = budget = 0
+    for t, b in enumerate(bandwidth):
+        used += spent.get(t, 0)
+        budget += int(b)
+        if used > budget:
+            return t
+    return len(bandwidth) - 1
+
+
+def feasibility_violations(instance: Instance, arrivals: Iterable[Arrival], *,
+                           slot: int | None = None) -> list[str]:
+    """Every rule the schedule breaks, as readable strings (empty list: feasible).
+
+    Checked exactly: indices in range, each chunk at most once and not already held, per-slot
+    or cumulative byte budgets in integer bytes, and (layered) layer l only after layer l-1
+    (same slot allowed unless ``options.same_slot_layers`` is false).
+    """
+    inst = instance
+    problems: list[str] = []
+    seen: dict[tuple[int, int], int] = {}
+    spent: dict[int, int] = defaultdict(int)
+    for a in arrivals:
+        j, l, t = (int(v) for v in a)
+        if not (0 <= j < inst.J and 0 <= l < inst.L and 0 <= t < inst.T):
+            problems.append(f"arrival {(j, l, t)} out of range (J={inst.J}, L={inst.L}, T={inst.T})")
+            continue
+        if slot is not None and t != slot:
+            problems.append(f"arrival {(j, l, t)} is not in slot {slot}")
+        if (j, l) in seen:
+            problems.append(f"chunk {(j, l)} arrives twice (slots {seen[(j, l)]} and {t})")
+            continue
+        if inst.held[j, l]:
+            problems.append(f"chunk {(j, l)} is already held")
+        seen[(j, l)] = t
+        spent[t] += int(inst.cost[j, l])
+    problems += budget_violations(spent, inst.bandwidth, cumulative=inst.options.budget == "cumulative" and slot is None)
+    if inst.layered:
+        strict = not inst.options.same_slot_layers
+        for (j, l), t in seen.items():
+            if l == 0 or inst.held[j, l - 1]:
+                continue
+            below = seen.get((j, l - 1))
+            if below is None or below > t or (strict and below == t):
+                rule = "a strictly earlier slot" if strict else "the same or an earlier slot"
+                problems.append(f"chunk {(j, l)} arrives in slot {t} but layer {l - 1} does not arrive in {rule}")
+    return problems
+
+
+def is_feasible(instance: Instance, arrivals: Iterable[Arrival], *, slot: int | None = None) -> bool:
+    return not feasibility_violations(instance, arrivals, slot=slot)
+
+
+def repair_schedule(instance: Instance, arrivals: Iterable[Arrival], *,
+                    slot: int | None = None) -> tuple[tuple[Arrival, ...], int]:
+    """Drop chunks until the schedule is feasible; return it and how many chunks were dropped.
+
+    Used when a backend's tolerances let a schedule exceed a budget by a few bytes (byte costs of
+    1e5-1e9 against an integrality tolerance of 1e-6). Per over-full slot it drops the chunk of
+    least utility per byte (with, for layered objects, every layer above it), so a repaired
+    schedule is never worse than necessary by much, but it is no longer proven optimal.
+    """
+    inst = instance
+    current = {(j, l): t for j, l, t in normalize_arrivals(arrivals)
+               if 0 <= j < inst.J and 0 <= l < inst.L and 0 <= t < inst.T and not inst.held[j, l]}
+    start = len(current)
+    value = inst.utility.sum(axis=0)
+
+    def drop(j: int, l: int) -> None:
+        top = inst.L if inst.layered else l + 1
+        for k in range(l, top):
+            current.pop((j, k), None)
+
+    while True:
+        schedule = [(j, l, t) for (j, l), t in current.items()]
+        if is_feasible(inst, schedule, slot=slot):
+            return normalize_arrivals(schedule), start - len(current)
+        # Precedence first: a layer without its lower layer is dropped with everything above it.
+        if inst.layered:
+            orphan = next(((j, l) for (j, l), t in current.items()
+                           if l > 0 and not inst.held[j, l - 1]
+                           and ((j, l - 1) not in current or current[(j, l - 1)] > t
+                                or (not inst.options.same_slot_layers and current[(j, l - 1)] == t))), None)
+            if orphan is not None:
+                drop(*orphan)
+                continue
+        spent: dict[int, int] = defaultdict(int)
+        for (j, l), t in current.items():
+            spent[t] += int(inst.cost[j, l])
+        cumulative = inst.options.budget == "cumulative" and slot is None
+        bad_t = first_breach(spent, inst.bandwidth, cumulative=cumulative)
+        pool = [(j, l) for (j, l), t in current.items() if (t <= bad_t if cumulative else t == bad_t)]
+        j, l = min(pool, key=lambda jl: (value[jl] / inst.cost[jl], -jl[1]))
+        drop(j, l)

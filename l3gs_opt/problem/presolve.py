@@ -1,0 +1,216 @@
+"""Presolve: leave out what an instance does not need, without changing its optimum.
+
+Multi-slot problems (I-IV, GAP form) get a :class:`Reduction`: which chunk may arrive in which
+slot, and from which slot a chunk can first be held. Rules, each safe for the exact optimum:
+
+* a held chunk gets no variables (its utility is a constant);
+* a chunk can arrive in slot t only if its own cost fits: per-slot budget
+  ``cost <= bandwidth[t]``, cumulative budget ``cost <= sum_{t'<=t} bandwidth[t']``; so a slot
+  with zero bandwidth takes no arrivals under per-slot budgets;
+* layered: layer l cannot arrive before the earliest slot layer l-1 can (strictly after it
+  when same-slot layers are off), so a layer above one that never fits never fits either;
+* a chunk is dropped when it (and, layered, every layer above it) adds no utility in any slot
+  it could be shown in;
+* cumulative budget with same-slot layers: a slot with zero bandwidth takes no arrivals,
+  because moving all of its arrivals one slot earlier is feasible (the cumulative budget is
+  the same) and never worse (utilities are non-negative). With strict layers that move could
+  break a layer order, so there the slot is kept.
+
+Single-slot MCKP options are reduced by :func:`mckp_options` (dominated levels removed: a
+level that costs at least as much as another and is worth no more). LP-dominated levels
+(below the upper convex hull) are *not* removed: they can be in the integer optimum.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from l3gs_opt.problem.instance import Instance
+
+__all__ = ["Reduction", "presolve", "shown_value", "MckpOptions", "mckp_options"]
+
+
+@dataclass(frozen=True, eq=False)
+class Reduction:
+    """Which variables a multi-slot model needs.
+
+    Attributes
+    ----------
+    arrive : bool array [J, L, T]
+        Chunk (j, l) may arrive in slot t.
+    first : int array [J, L]
+        Earliest slot chunk (j, l) can arrive in (T when never, also for held chunks).
+    active : bool array [J, L]
+        Chunk gets variables.
+    gain : float array [T, J, L]
+        Objective coefficient of "chunk shown at slot t": dU (layered) or the version's utility
+        above the best held version, clipped at 0 (separate).
+    constant : float
+        Utility of the held chunks (separate: of the best held version), summed over slots.
+    stats : dict
+        What was dropped, for reports.
+    """
+
+    arrive: np.ndarray
+    first: np.ndarray
+    active: np.ndarray
+    gain: np.ndarray
+    constant: float
+    stats: dict
+
+
+def shown_value(instance: Instance, utility: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """Per-(t, j, l) objective gain of showing a chunk, and the held constant (float64).
+
+    ``utility`` defaults to the instance's; pass a slice ``[T', J, L]`` for a few slots.
+    """
+    held = instance.held[None]
+    utility = instance.utility if utility is None else utility
+    if instance.layered:
+        gain = np.where(held, 0.0, utility)
+        constant = math.fsum(utility[np.broadcast_to(held, utility.shape)].tolist())
+    else:
+        base = np.where(held, utility, 0.0).max(axis=2, initial=0.0)
+        gain = np.where(held, 0.0, np.clip(utility - base[:, :, None], 0.0, None))
+        constant = math.fsum(base.ravel().tolist())
+    return gain, constant
+
+
+def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
+    """Reduce a multi-slot instance; ``enabled=False`` keeps every chunk and slot (naive model)."""
+    inst = instance
+    T, J, L = inst.T, inst.J, inst.L
+    gain, constant = shown_value(inst)
+    if not enabled:
+        arrive = np.ones((J, L, T), dtype=bool)
+        first = np.zeros((J, L), dtype=np.int64)
+        return Reduction(arrive=arrive, first=first, active=np.ones((J, L), dtype=bool), gain=gain,
+                         constant=constant, stats={"presolve": False})
+    bandwidth = inst.bandwidth.astype(np.int64)
+    if inst.options.budget == "per_slot":
+        fits = inst.cost[:, :, None] <= bandwidth[None, None, :]
+    else:
+        cum = np.cumsum(bandwidth)
+        fits = inst.cost[:, :, None] <= cum[None, None, :]
+        if inst.options.same_slot_layers:
+            zero = bandwidth == 0
+            zero[0] = False  # slot 0 with zero bandwidth already admits nothing (cum = 0)
+            fits &= ~zero[None, None, :]
+    fits &= ~inst.held[:, :, None]
+    slots = np.arange(T)
+    first = np.full((J, L), T, dtype=np.int64)
+    if inst.layered:
+        strict = not inst.options.same_slot_layers
+        for l in range(L):
+            if l == 0:
+                lower = np.zeros(J, dtype=np.int64)
+            else:  # held chunks have first = T, so a held lower layer must not constrain
+                lower = np.where(inst.held[:, l - 1], 0, first[:, l - 1] + (1 if strict else 0))
+            fits[:, l, :] &= slots[None, :] >= lower[:, None]
+            any_fit = fits[:, l, :].any(axis=1)
+            first[:, l] = np.where(any_fit, fits[:, l, :].argmax(axis=1), T)
+    else:
+        any_fit = fits.any(axis=2)
+        first = np.where(any_fit, fits.argmax(axis=2), T)
+    # Value a chunk can still add from its earliest possible showing on.
+    shift = 1 if inst.options.availability == "next_slot" else 0
+    shown_from = first + shift
+    mask = slots[:, None, None] >= shown_from[None]
+    value = np.where(mask, gain, 0.0).sum(axis=0)  # [J, L]
+    useful = value > 0
+    if inst.layered:
+        # A layer with no value of its own is still needed under a useful layer above it.
+        useful = np.flip(np.logical_or.accumulate(np.flip(useful, axis=1), axis=1), axis=1)
+    never_fit = (first >= T) & ~inst.held
+    active = useful & ~never_fit & ~inst.held
+    arrive = fits & active[:, :, None]
+    stats = {
+        "presolve": True,
+        "held": int(inst.held.sum()),
+        "never_fit": int(never_fit.sum()),
+        "no_utility": int((~useful & ~never_fit & ~inst.held).sum()),
+        "active_chunks": int(active.sum()),
+        "slots_without_arrivals": int((~arrive.any(axis=(0, 1))).sum()) if J * L else T,
+    }
+    return Reduction(arrive=arrive, first=np.where(active, first, T), active=active, gain=gain,
+                     constant=constant, stats=stats)
+
+
+@dataclass(frozen=True, eq=False)
+class MckpOptions:
+    """The single-slot multiple-choice knapsack: per object, the levels it may move up to.
+
+    ``objects[i]`` is the object index; ``cost[i]``, ``value[i]`` and ``arrivals[i]`` are lists
+    over that object's options: extra bytes, extra utility at the slot, and the chunks
+    ``(j, l)`` that arrive. ``constant`` is the utility shown from held chunks.
+    """
+
+    objects: tuple[int, ...]
+    cost: tuple[tuple[int, ...], ...]
+    value: tuple[tuple[float, ...], ...]
+    arrivals: tuple[tuple[tuple[tuple[int, int], ...], ...], ...]
+    budget: int
+    constant: float
+    stats: dict
+
+
+def mckp_options(instance: Instance, slot: int, *, enabled: bool = True) -> MckpOptions:
+    """Options of the single-slot MCKP at ``slot`` given ``held`` (docs/design.md, Lemma 3).
+
+    Layered object j holding h layers may move to any level z > h (all of layers h..z-1 arrive;
+    only z = h+1 when same-slot layers are off): extra cost ``C[z] - C[h]``, extra value the
+    summed ``dU`` of those layers at the slot. Separate: any unheld version, extra value its
+    utility above the best held version (clipped at 0), cost the whole version.
+
+    Presolve (``enabled``) drops options over the budget, options worth nothing, and dominated
+    options (another option of the same object costs no more and is worth at least as much).
+    """
+    inst = instance
+    budget = int(inst.bandwidth[slot])
+    gain, held_value = shown_value(inst, inst.utility[slot:slot + 1])
+    gain = gain[0]
+    objects, costs, values, arrivals = [], [], [], []
+    dropped = {"over_budget": 0, "no_value": 0, "dominated": 0}
+    for j in range(inst.J):
+        opts: list[tuple[int, float, tuple[tuple[int, int], ...]]] = []
+        if inst.layered:
+            h = int(inst.held[j].sum())
+            top = inst.L if inst.options.same_slot_layers else min(inst.L, h + 1)
+            c, v = 0, 0.0
+            for z in range(h, top):
+                c += int(inst.cost[j, z])
+                v += float(gain[j, z])
+                opts.append((c, v, tuple((j, k) for k in range(h, z + 1))))
+        else:
+            for l in range(inst.L):
+                if not inst.held[j, l]:
+                    opts.append((int(inst.cost[j, l]), float(gain[j, l]), ((j, l),)))
+        if enabled:
+            kept = []
+            for o in opts:
+                if o[0] > budget:
+                    dropped["over_budget"] += 1
+                elif o[1] <= 0:
+                    dropped["no_value"] += 1
+                else:
+                    kept.append(o)
+            # Dominance: sort by cost, then value descending; keep strictly increasing values.
+            kept.sort(key=lambda o: (o[0], -o[1]))
+            pareto = []
+            for o in kept:
+                if pareto and o[1] <= pareto[-1][1]:
+                    dropped["dominated"] += 1
+                    continue
+                pareto.append(o)
+            opts = pareto
+        if opts:
+            objects.append(j)
+            costs.append(tuple(o[0] for o in opts))
+            values.append(tuple(o[1] for o in opts))
+            arrivals.append(tuple(o[2] for o in opts))
+    stats = {"presolve": enabled, **(dropped if enabled else {})}
+    return MckpOptions(objects=tuple(objects), cost=tuple(costs), value=tuple(values), arrivals=tuple(arrivals),
+                       budget=budget, constant=held_value, stats=stats)

@@ -1,0 +1,460 @@
+"""Splat scenes: the immutable :class:`SplatScene` and PLY I/O in the reference 3DGS layout.
+
+The PLY layout is the one written by the reference 3DGS implementation (Kerbl et al. 2023)
+and read by most viewers: one ``vertex`` element with the float32 properties
+
+``x y z [nx ny nz] f_dc_0 f_dc_1 f_dc_2 [f_rest_0 ... f_rest_{3(K-1)-1}] opacity
+scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``
+
+with ``K = (sh_degree + 1) ** 2`` SH coefficients per colour channel.  ``f_rest_*`` is stored
+channel-major (all red coefficients 1..K-1, then green, then blue), ``opacity`` is a logit,
+``scale_*`` are natural logs of the standard deviations (world units) and ``rot_*`` is a
+quaternion ``(w, x, y, z)`` (not necessarily normalised).  l3gs-opt adds two optional int32
+properties: ``object_id`` (segmented scenes) and ``layer`` (layered scenes, 0 = base layer).
+
+Writing keeps only what the scene has: no normals unless the scene carries them, no
+``f_rest_*`` for SH degree 0, no ``object_id`` for an unsegmented scene, no ``layer`` for a
+single-layer scene.  Reading then writing a file written here is bit-exact.
+
+Reading is bounded: only regular files of at most :data:`l3gs_opt.input_files.MAX_BINARY_BYTES`,
+and a header whose element counts the file cannot hold is refused before anything is allocated.
+Every error names the PLY property and the vertex row (``x[0]: 1e+300 does not fit in float32``),
+never an internal array.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from l3gs_opt.errors import L3gsError
+from l3gs_opt.input_files import MAX_BINARY_BYTES, check_regular_file
+
+__all__ = ["SceneError", "SplatScene", "read_ply", "write_ply", "sh_degree_from_coeffs",
+           "bytes_per_splat", "MIN_QUAT_NORM", "ply_property"]
+
+#: Smallest quaternion norm: the renderer normalises in float32, where the squares of smaller
+#: components underflow (a norm of 1e-25 renders a wrong rotation).
+MIN_QUAT_NORM = 1e-15
+#: Longest PLY header read (bytes); the reference layout's is ~1.5 kB.
+_MAX_PLY_HEADER = 1 << 20
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+_BASE_PROPS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+               "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+_NORMAL_PROPS = ("nx", "ny", "nz")
+_REST_RE = re.compile(r"^f_rest_(\d+)$")
+
+
+class SceneError(L3gsError, ValueError):
+    """A splat scene or scene file is malformed (bad shape, NaN, missing/unknown PLY property).
+
+    Attributes
+    ----------
+    field : str
+        The field or PLY property at fault (``"means"``, ``"f_rest_7"``, ``"file"``, ...).
+    index : tuple of int or None
+        The index inside that field when one entry is at fault.
+    """
+
+    def __init__(self, field: str, message: str, index: tuple[int, ...] | None = None):
+        self.field = field
+        self.index = tuple(int(i) for i in index) if index is not None else None
+        where = field + "".join(f"[{i}]" for i in self.index or ())
+        super().__init__(f"{where}: {message}")
+
+
+def sh_degree_from_coeffs(k: int) -> int:
+    """Return the SH degree ``d`` with ``(d + 1) ** 2 == k`` (``k`` in {1, 4, 9, 16}).
+
+    Raises
+    ------
+    SceneError
+        If ``k`` is not the coefficient count of degree 0..3.
+    """
+    for d in range(4):
+        if (d + 1) ** 2 == k:
+            return d
+    raise SceneError("sh", f"{k} coefficients per channel: must be 1, 4, 9 or 16 (SH degree 0-3)")
+
+
+def bytes_per_splat(sh_degree: int) -> int:
+    """Bytes per splat in the reference float32 PLY layout without normals.
+
+    ``3`` (mean) + ``3 (d+1)^2`` (SH) + ``1`` (opacity) + ``3`` (scale) + ``4`` (rotation)
+    float32 values: 56 bytes at degree 0, 236 bytes at degree 3 (the reference file adds
+    12 bytes of zero normals).
+    """
+    return 4 * (3 + 3 * (int(sh_degree) + 1) ** 2 + 1 + 3 + 4)
+
+
+def _check_finite(field: str, a: np.ndarray) -> None:
+    bad = ~np.isfinite(a)
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise SceneError(field, f"{a[idx]} is not finite", idx)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SplatScene:
+    """An immutable, validated set of 3D Gaussian splats (reference 3DGS parameterisation).
+
+    Parameters
+    ----------
+    means : ndarray, shape [N, 3], float32
+        Splat centres in world units.
+    log_scales : ndarray, shape [N, 3], float32
+        Natural log of the per-axis standard deviations (world units).
+    quats : ndarray, shape [N, 4], float32
+        Rotation quaternions ``(w, x, y, z)``; normalised when rendering, must be non-zero.
+    opacity_logits : ndarray, shape [N], float32
+        Opacity before the sigmoid.
+    sh : ndarray, shape [N, K, 3], float32
+        Spherical-harmonic colour coefficients, ``K = (sh_degree + 1) ** 2``; coefficient 0 is
+        the DC term (``f_dc_*`` in the PLY).
+    object_ids : ndarray, shape [N], int32, optional
+        Object of each splat (segmented scenes); ``None`` for an unsegmented scene.
+    layers : ndarray, shape [N], int32, optional
+        Layer of each splat, 0 = base layer; ``None`` for a single-layer scene.  An array whose
+        entries are all 0 is stored as ``None`` (one layer).
+    normals : ndarray, shape [N, 3], float32, optional
+        Normals carried by some PLY files (unused by rendering); kept for a bit-exact round trip.
+
+    Raises
+    ------
+    SceneError
+        On a wrong shape, a non-finite value, a zero quaternion or a negative id/layer; the
+        message names the field and the index.
+    """
+
+    means: np.ndarray
+    log_scales: np.ndarray
+    quats: np.ndarray
+    opacity_logits: np.ndarray
+    sh: np.ndarray
+    object_ids: Optional[np.ndarray] = None
+    layers: Optional[np.ndarray] = None
+    normals: Optional[np.ndarray] = None
+
+    def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        means = np.ascontiguousarray(self.means, dtype=np.float32)
+        if means.ndim != 2 or means.shape[1] != 3:
+            raise SceneError("means", f"shape {means.shape}: must be [N, 3]")
+        n = means.shape[0]
+        shapes = {"log_scales": (n, 3), "quats": (n, 4), "opacity_logits": (n,)}
+        arrays = {"means": means}
+        for name, shape in shapes.items():
+            a = np.ascontiguousarray(getattr(self, name), dtype=np.float32)
+            if a.shape != shape:
+                raise SceneError(name, f"shape {a.shape}: must be {list(shape)} (N = {n})")
+            arrays[name] = a
+        sh = np.ascontiguousarray(self.sh, dtype=np.float32)
+        if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
+            raise SceneError("sh", f"shape {sh.shape}: must be [N, K, 3] (N = {n})")
+        sh_degree_from_coeffs(sh.shape[1])
+        arrays["sh"] = sh
+        if self.normals is not None:
+            nrm = np.ascontiguousarray(self.normals, dtype=np.float32)
+            if nrm.shape != (n, 3):
+                raise SceneError("normals", f"shape {nrm.shape}: must be [N, 3] (N = {n})")
+            arrays["normals"] = nrm
+        for name, a in arrays.items():
+            _check_finite(name, a)
+            a.setflags(write=False)
+            set_(name, a)
+        qn = np.linalg.norm(self.quats.astype(np.float64), axis=1)
+        if n and (qn == 0).any():
+            raise SceneError("quats", "zero quaternion", (int(np.argmin(qn)),))
+        if n and (qn < MIN_QUAT_NORM).any():
+            i = int(np.argmin(qn))
+            raise SceneError("quats", f"norm {qn[i]:.3g} is below {MIN_QUAT_NORM:g} (MIN_QUAT_NORM): too close to zero "
+                                      f"to normalise in float32", (i,))
+        for name in ("object_ids", "layers"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            raw = np.asarray(v)
+            if raw.shape != (n,):
+                raise SceneError(name, f"shape {raw.shape}: must be [N] (N = {n})")
+            if raw.dtype.kind == "f":
+                if not np.all(np.isfinite(raw)) or np.any(raw != np.round(raw)):
+                    i = int(np.argmax(~np.isfinite(raw) | (raw != np.round(raw))))
+                    raise SceneError(name, f"{raw[i]} is not an integer", (i,))
+            elif raw.dtype.kind not in "iub":
+                raise SceneError(name, f"dtype {raw.dtype}: must be integer")
+            a = np.ascontiguousarray(raw, dtype=np.int64)
+            if n and a.min() < 0:
+                raise SceneError(name, f"{a.min()}: must be >= 0", (int(np.argmin(a)),))
+            if n and a.max() > np.iinfo(np.int32).max:
+                raise SceneError(name, f"{a.max()}: must fit in int32", (int(np.argmax(a)),))
+            a = a.astype(np.int32)
+            if name == "layers" and not a.any():
+                set_(name, None)
+                continue
+            a.setflags(write=False)
+            set_(name, a)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def num_splats(self) -> int:
+        """Number of splats ``N``."""
+        return int(self.means.shape[0])
+
+    def __len__(self) -> int:
+        return self.num_splats
+
+    @property
+    def sh_degree(self) -> int:
+        """SH degree 0..3 of the colour coefficients."""
+        return sh_degree_from_coeffs(self.sh.shape[1])
+
+    @property
+    def num_objects(self) -> int:
+        """Number of distinct object ids (1 for an unsegmented scene)."""
+        return 1 if self.object_ids is None else int(np.unique(self.object_ids).size)
+
+    @property
+    def num_layers(self) -> int:
+        """``max(layer) + 1`` (1 for a single-layer scene)."""
+        return 1 if self.layers is None else int(self.layers.max()) + 1
+
+    def subset(self, index) -> "SplatScene":
+        """Return the scene restricted to ``index`` (boolean mask [N] or integer indices)."""
+        pick = lambda a: None if a is None else np.asarray(a)[index]  # noqa: E731
+        return SplatScene(means=self.means[index], log_scales=self.log_scales[index],
+                          quats=self.quats[index], opacity_logits=self.opacity_logits[index],
+                          sh=self.sh[index], object_ids=pick(self.object_ids),
+                          layers=pick(self.layers), normals=pick(self.normals))
+
+    def with_sh_degree(self, degree: int) -> "SplatScene":
+        """Return the scene truncated (or zero-padded) to SH degree ``degree`` (0..3)."""
+        if degree not in (0, 1, 2, 3):
+            raise SceneError("sh_degree", f"{degree}: must be 0, 1, 2 or 3")
+        k = (degree + 1) ** 2
+        sh = np.zeros((self.num_splats, k, 3), np.float32)
+        m = min(k, self.sh.shape[1])
+        sh[:, :m] = self.sh[:, :m]
+        return dataclasses.replace(self, sh=sh)
+
+    def __repr__(self) -> str:
+        return (f"SplatScene(N={self.num_splats}, sh_degree={self.sh_degree}, "
+                f"objects={self.num_objects}, layers={self.num_layers})")
+
+
+# ---------------------------------------------------------------------- PLY I/O
+def _ply_dtype(scene: SplatScene) -> list[tuple[str, str]]:
+    names = ["x", "y", "z"]
+    if scene.normals is not None:
+        names += list(_NORMAL_PROPS)
+    names += ["f_dc_0", "f_dc_1", "f_dc_2"]
+    names += [f"f_rest_{i}" for i in range(3 * (scene.sh.shape[1] - 1))]
+    names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    dt = [(n, "<f4") for n in names]
+    if scene.object_ids is not None:
+        dt.append(("object_id", "<i4"))
+    if scene.layers is not None:
+        dt.append(("layer", "<i4"))
+    return dt
+
+
+def write_ply(scene: SplatScene, path, *, text: bool = False) -> Path:
+    """Write ``scene`` as a PLY file in the reference 3DGS layout (binary little-endian).
+
+    Parameters
+    ----------
+    scene : SplatScene
+    path : str or Path
+        Destination; parent folders are created.
+    text : bool, keyword-only
+        Write ASCII PLY instead (large and slow; for debugging).
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    from plyfile import PlyData, PlyElement
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = scene.num_splats
+    rec = np.empty(n, dtype=_ply_dtype(scene))
+    rec["x"], rec["y"], rec["z"] = scene.means.T
+    if scene.normals is not None:
+        rec["nx"], rec["ny"], rec["nz"] = scene.normals.T
+    for c in range(3):
+        rec[f"f_dc_{c}"] = scene.sh[:, 0, c]
+    rest = np.ascontiguousarray(scene.sh[:, 1:, :].transpose(0, 2, 1)).reshape(n, -1)
+    for i in range(rest.shape[1]):
+        rec[f"f_rest_{i}"] = rest[:, i]
+    rec["opacity"] = scene.opacity_logits
+    for i in range(3):
+        rec[f"scale_{i}"] = scene.log_scales[:, i]
+    for i in range(4):
+        rec[f"rot_{i}"] = scene.quats[:, i]
+    if scene.object_ids is not None:
+        rec["object_id"] = scene.object_ids
+    if scene.layers is not None:
+        rec["layer"] = scene.layers
+    PlyData([PlyElement.describe(rec, "vertex")], text=text).write(str(path))
+    return path
+
+
+def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
+    """Read a 3DGS PLY file (reference layout, with or without normals) into a :class:`SplatScene`.
+
+    Parameters
+    ----------
+    path : str or Path
+    ignore_unknown : bool, keyword-only
+        Unknown ``vertex`` properties (e.g. ``red``/``green``/``blue`` from other tools) are an
+        error by default, so that a misspelt property never silently drops data; set this to
+        skip them instead.
+
+    Returns
+    -------
+    SplatScene
+
+    Raises
+    ------
+    SceneError
+        If the file is missing, not a PLY, truncated or corrupt, lacks a required property,
+        has an unknown one (unless ``ignore_unknown``), a gap in ``f_rest_*``, a coefficient
+        count that is not SH degree 0-3, or a non-finite value.
+    """
+    from plyfile import PlyData
+
+    path = check_regular_file(path, lambda f, m: SceneError(f, m), max_bytes=MAX_BINARY_BYTES)
+    _check_ply_header(path)
+    try:
+        ply = PlyData.read(str(path))
+    except Exception as exc:  # plyfile raises several types on bad input
+        raise SceneError("file", f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
+    try:
+        vertex = ply["vertex"]
+    except KeyError:
+        raise SceneError("file", f"{path}: no 'vertex' element") from None
+    try:
+        data = vertex.data
+        names = list(data.dtype.names or ())
+        n = len(data)
+    except Exception as exc:
+        raise SceneError("file", f"{path}: corrupt vertex data ({exc})") from None
+    missing = [p for p in _BASE_PROPS if p not in names]
+    if missing:
+        raise SceneError(missing[0], f"{path}: missing vertex property (found {', '.join(names)})")
+    rest_idx = sorted(int(m.group(1)) for m in (_REST_RE.match(p) for p in names) if m)
+    if rest_idx != list(range(len(rest_idx))):
+        gap = next(i for i in range(len(rest_idx) + 1) if i not in rest_idx)
+        raise SceneError(f"f_rest_{gap}", f"{path}: missing (f_rest_* must be numbered 0..M-1)")
+    if len(rest_idx) % 3:
+        raise SceneError("f_rest", f"{path}: {len(rest_idx)} properties, must be a multiple of 3")
+    k = 1 + len(rest_idx) // 3
+    sh_degree_from_coeffs(k)
+    known = set(_BASE_PROPS) | set(_NORMAL_PROPS) | {"object_id", "layer"} | {f"f_rest_{i}" for i in rest_idx}
+    unknown = [p for p in names if p not in known]
+    if unknown and not ignore_unknown:
+        raise SceneError(unknown[0], f"{path}: unknown vertex property (pass ignore_unknown=True / "
+                                     f"--ignore-unknown-properties to skip it)")
+    has_normals = all(p in names for p in _NORMAL_PROPS)
+
+    def col(name: str) -> np.ndarray:
+        a = np.asarray(data[name])
+        if a.dtype.kind not in "fiu":
+            raise SceneError(name, f"{path}: dtype {a.dtype} is not numeric")
+        if a.dtype.kind == "f":
+            bad = ~np.isfinite(a)
+            if bad.any():
+                raise SceneError(name, f"{path}: {a[bad][0]} is not finite", (int(np.argmax(bad)),))
+            big = np.abs(a) > _FLOAT32_MAX
+            if big.any():  # a float64 property: refused before the cast to float32 makes it inf
+                i = int(np.argmax(big))
+                raise SceneError(name, f"{path}: {float(a[i])!r} does not fit in float32 (|value| <= {_FLOAT32_MAX:.4g})",
+                                 (i,))
+        return a
+
+    def stack(props) -> np.ndarray:
+        return np.stack([col(p).astype(np.float32) for p in props], axis=1) if n else \
+            np.zeros((0, len(props)), np.float32)
+
+    means = stack(("x", "y", "z"))
+    dc = stack(("f_dc_0", "f_dc_1", "f_dc_2"))
+    rest = stack([f"f_rest_{i}" for i in rest_idx]) if rest_idx else np.zeros((n, 0), np.float32)
+    sh = np.concatenate([dc[:, None, :], rest.reshape(n, 3, k - 1).transpose(0, 2, 1)], axis=1)
+    kwargs = {}
+    if "object_id" in names:
+        kwargs["object_ids"] = col("object_id")
+    if "layer" in names:
+        kwargs["layers"] = col("layer")
+    if has_normals:
+        kwargs["normals"] = stack(_NORMAL_PROPS)
+    try:
+        return SplatScene(means=means, log_scales=stack(("scale_0", "scale_1", "scale_2")),
+                          quats=stack(("rot_0", "rot_1", "rot_2", "rot_3")),
+                          opacity_logits=col("opacity").astype(np.float32), sh=sh, **kwargs)
+    except SceneError as exc:  # name the PLY property, not the internal array
+        if exc.field not in _SCENE_FIELDS or not exc.index:
+            raise
+        field, index = ply_property(exc.field, exc.index, k)
+        message = str(exc).split(": ", 1)[1]
+        raise SceneError(field, f"{path}: {message}", index) from None
+
+
+_SCENE_FIELDS = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
+                 "quats": None, "opacity_logits": ("opacity",), "sh": None, "normals": _NORMAL_PROPS,
+                 "object_ids": ("object_id",), "layers": ("layer",)}
+
+
+def ply_property(field: str, index: tuple[int, ...], coeffs: int) -> tuple[str, tuple[int, ...]]:
+    """The PLY property and vertex row of entry ``index`` of a :class:`SplatScene` array ``field``
+    (``("means", (5, 1))`` -> ``("y", (5,))``; ``coeffs`` = SH coefficients per channel)."""
+    row = (index[0],)
+    if field == "quats":
+        return ("rot_0..3" if len(index) == 1 else f"rot_{index[1]}"), row
+    if field == "sh":
+        if len(index) < 3:
+            return "f_dc_0..2", row
+        k, c = index[1], index[2]
+        return (f"f_dc_{c}" if k == 0 else f"f_rest_{c * (coeffs - 1) + k - 1}"), row
+    names = _SCENE_FIELDS[field]
+    return names[index[1] if len(index) > 1 else 0], row
+
+
+def _check_ply_header(path: Path) -> None:
+    """Refuse a header whose element counts the file cannot hold (before plyfile allocates them).
+
+    Each element takes at least its scalar sizes (binary) or two characters per property (ASCII).
+    Headers that do not parse are left to plyfile, which names the fault.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_PLY_HEADER)
+    end = head.find(b"end_header")
+    if end < 0:
+        if len(head) == _MAX_PLY_HEADER:
+            raise SceneError("file", f"{path}: no 'end_header' in the first {_MAX_PLY_HEADER:,} bytes")
+        return
+    newline = head.find(b"\n", end)
+    body = path.stat().st_size - (newline + 1 if newline >= 0 else len(head))
+    ascii_ = False
+    elements: list[list] = []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        tok = line.split()
+        if len(tok) >= 2 and tok[0] == "format":
+            ascii_ = tok[1] == "ascii"
+        elif len(tok) == 3 and tok[0] == "element" and tok[2].isdigit():
+            elements.append([tok[1], int(tok[2]), 0])
+        elif len(tok) >= 3 and tok[0] == "property" and elements:
+            size = _PLY_SIZES.get(tok[2] if tok[1] == "list" else tok[1], 1)
+            elements[-1][2] += 2 if ascii_ else size
+    for name, count, least in elements:
+        if count * max(least, 1) > body:
+            raise SceneError("file", f"{path}: header claims {count:,} '{name}' elements, more than the "
+                                     f"{body:,} bytes after the header can hold")
+        body -= count * max(least, 1)

@@ -1,0 +1,140 @@
+"""Options and the error type of the delivery simulator (:mod:`l3gs_opt.simulator.simulation`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from l3gs_opt.errors import L3gsError
+from l3gs_opt.simulator.link import BUDGETS
+
+__all__ = ["SimulationError", "SimConfig", "TIMING_KEYS", "SH_UPGRADE_UTILITIES"]
+
+#: Per-slot timings kept in every slot record (seconds).
+TIMING_KEYS = ("prediction", "utility", "scheduling", "rendering", "reference", "metrics")
+#: Named proxies for the utility of a distill SH upgrade (a number in [0, 1] is a fixed fraction).
+SH_UPGRADE_UTILITIES = ("residual", "bands")
+_VIEWPORT = ("lr", "last", "oracle")
+_BANDWIDTH = ("harmonic", "last", "oracle")
+_UTILITY = ("exact", "table")
+
+
+class SimulationError(L3gsError, ValueError):
+    """Bad simulator input (method, option, bundle, pose log); names the field, and the index where one is at fault."""
+
+    def __init__(self, field: str, message: str, index: int | None = None):
+        self.field = field
+        self.index = index
+        super().__init__(f"{field}{'' if index is None else f'[{index}]'}: {message}")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Options of a simulation (see :mod:`l3gs_opt.simulator.simulation`).
+
+    Parameters
+    ----------
+    slot_s : float
+        Slot length, seconds.
+    budget : {"per_slot", "cumulative"}
+        Idle bytes lost, or banked for the next slot.
+    width, height : int
+        Rendered (and utility) image size in pixels.
+    fov_deg : float
+        Horizontal field of view, degrees.
+    samples_per_slot : int
+        Predicted viewpoints per slot whose utilities are averaged.
+    viewport : {"lr", "last", "oracle"}
+        Viewport predictor; ``hw_s``: its history window, seconds.
+    bandwidth_predictor : {"harmonic", "last", "oracle"}
+        ``bandwidth_window``: slots in the harmonic mean; ``robust``: RobustMPC's discount.
+    utility : {"exact", "table"}
+        Eq. 1 per predicted viewpoint, or a lookup in a viewpoint table
+        (:meth:`l3gs_opt.pipeline.splat_utility.UtilityTable.lookup` with its defaults).
+    pose_start_s : float
+        Pose-log time of slot 0's start, seconds.
+    time_limit_s : float or None
+        Seconds per scheduling call (passed to the solver).
+    horizon : int or None
+        Multi-slot methods plan at most this many slots ahead (None: the rest of the run).
+    fill : bool
+        Keep the link busy after the slot's picks (see the module docstring).
+    backend : str
+        ILP backend of ``ilp``, ``mpc:H``, ``rolling:ilp``.
+    substeps : int
+        Re-plan points per slot (beyond the paper): the slot's bytes are split into this many
+        equal parts and before each part the scheduler plans again with the bytes the client
+        measured so far in the slot (1: plan once per slot, as in the paper).
+    bandwidth_bias : float
+        The predicted bytes of a slot are multiplied by this (> 0): 1 is the predictor as is,
+        above 1 an over-optimistic predictor (for sensitivity studies).
+    sh_upgrade_utility : {"residual", "bands"} or float
+        How a ``distill`` splat's Eq. 1 utility ``u`` is split between its compact form and its
+        SH upgrade (Eq. 1 is colour-blind): the upgrade gets ``u * f``, the compact form
+        ``u * (1 - f)``. ``residual``: ``f`` is the share of the splat's SH energy the compact
+        fit misses, ``|sh - compact|^2 / |sh|^2`` (by SH orthonormality, the relative mean
+        squared colour error over all view directions); ``bands``: the share in the bands above
+        the compact degree; a number in [0, 1]: that fixed fraction. ``residual`` is the
+        default because a distill bundle's compact SH is a fit to the full colour over the
+        training views, not a truncation: what the upgrade adds is what the fit misses (for a
+        truncation the two proxies agree), and unlike a fixed fraction it gives a nearly diffuse
+        splat's upgrade almost nothing. Splitting ``u`` (rather than giving the upgrade ``u * f``
+        on top) keeps a whole layer worth its Eq. 1 utility, as in every other method.
+    """
+
+    slot_s: float = 1.0
+    budget: str = "per_slot"
+    width: int = 160
+    height: int = 120
+    fov_deg: float = 70.0
+    samples_per_slot: int = 2
+    viewport: str = "lr"
+    hw_s: float = 0.5
+    bandwidth_predictor: str = "harmonic"
+    bandwidth_window: int = 5
+    robust: bool = False
+    utility: str = "exact"
+    pose_start_s: float = 0.0
+    time_limit_s: float | None = None
+    horizon: int | None = None
+    fill: bool = True
+    backend: str = "highs"
+    substeps: int = 1
+    bandwidth_bias: float = 1.0
+    sh_upgrade_utility: str | float = "residual"
+
+    def __post_init__(self) -> None:
+        def positive(name: str, integer: bool = False) -> None:
+            v = getattr(self, name)
+            ok = isinstance(v, (int, np.integer)) if integer else isinstance(v, (int, float, np.integer, np.floating))
+            if isinstance(v, bool) or not ok or not math.isfinite(v) or v <= 0:
+                kind = "a positive integer" if integer else "a positive number"
+                raise SimulationError(name, f"{v!r}: must be {kind}")
+
+        for name in ("slot_s", "fov_deg", "hw_s", "bandwidth_bias"):
+            positive(name)
+        for name in ("width", "height", "samples_per_slot", "bandwidth_window", "substeps"):
+            positive(name, integer=True)
+        if self.width < 11 or self.height < 11:
+            raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
+        for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),
+                              ("utility", _UTILITY)):
+            if getattr(self, name) not in allowed:
+                raise SimulationError(name, f"{getattr(self, name)!r} is not one of {', '.join(allowed)}")
+        if self.time_limit_s is not None:
+            positive("time_limit_s")
+        if self.horizon is not None:
+            positive("horizon", integer=True)
+        if not (isinstance(self.pose_start_s, (int, float)) and math.isfinite(self.pose_start_s)
+                and self.pose_start_s >= 0):
+            raise SimulationError("pose_start_s", f"{self.pose_start_s!r}: must be a number >= 0 (seconds)")
+        f = self.sh_upgrade_utility
+        if isinstance(f, str):
+            if f not in SH_UPGRADE_UTILITIES:
+                raise SimulationError("sh_upgrade_utility", f"{f!r} is not one of {', '.join(SH_UPGRADE_UTILITIES)} "
+                                                            "or a number in [0, 1]")
+        elif isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
+                or not (0.0 <= float(f) <= 1.0):
+            raise SimulationError("sh_upgrade_utility", f"{f!r}: must be 'residual', 'bands' or a number in [0, 1]")

@@ -1,0 +1,266 @@
+"""One sequential link driven by a bandwidth trace: pure byte accounting (no scenes, no torch).
+
+Each slot ``t`` the link can move ``capacity[t] = bandwidth[t] (+ bank)`` bytes. It sends, in
+order, first what was cut off at the end of the previous slot (*in flight*: it carries over),
+then the slot's requests, each from its first byte to its last. A request that gets no byte in
+the slot is dropped (the client asks again next slot if it still wants it: the requester
+re-plans every slot). A request that gets some but not all of its bytes is in flight and
+continues first next slot. When the queue runs dry, the rest of the slot's bytes are idle:
+lost (``budget="per_slot"``, the paper's per-slot budget) or banked for the next slot
+(``budget="cumulative"``: the bytes up to slot t are bounded by the bandwidth up to slot t,
+the instance option of the same name).
+
+Byte counts are Python ints (exact), at most 2^53 each (:data:`l3gs_opt.traces.bandwidth.MAX_SLOT_BYTES`, as
+in instances); a slot never delivers more than its capacity, and ``delivered + idle == capacity``
+holds in every slot.
+
+Example
+-------
+>>> link = Link([10, 10])
+>>> d = link.step([("a", 15)])
+>>> d.delivered, d.in_flight
+({'a': 10}, (('a', 5),))
+>>> link.step([("b", 3)]).delivered      # "a" finishes first, then "b"
+{'a': 5, 'b': 3}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Hashable, Sequence
+
+import numpy as np
+
+from l3gs_opt.errors import L3gsError
+from l3gs_opt.traces.bandwidth import MAX_SLOT_BYTES
+
+__all__ = ["LinkError", "Transfer", "SlotDelivery", "Link", "BUDGETS", "max_min_shares", "split_bytes"]
+
+BUDGETS = ("per_slot", "cumulative")
+
+
+class LinkError(L3gsError, ValueError):
+    """Bad link input: a negative or fractional byte count, a duplicate request, a slot past the trace."""
+
+
+@dataclass
+class Transfer:
+    """One chunk on the link: ``size`` bytes, ``delivered`` of them so far."""
+
+    key: Hashable
+    size: int
+    delivered: int = 0
+
+    @property
+    def remaining(self) -> int:
+        return self.size - self.delivered
+
+
+@dataclass(frozen=True)
+class SlotDelivery:
+    """What the link did in one slot.
+
+    Attributes
+    ----------
+    slot : int
+    capacity : int
+        Bytes the link could move in this slot: the trace's bytes, plus the bank (cumulative).
+    delivered : dict
+        Bytes delivered in this slot per key, in the order they were sent.
+    started : tuple
+        Keys whose first byte arrived in this slot.
+    completed : tuple
+        Keys whose last byte arrived in this slot.
+    dropped : tuple
+        Requests that got no byte (they are forgotten).
+    in_flight : tuple of (key, remaining bytes)
+        Cut off at the end of the slot: they continue first next slot.
+    idle : int
+        Bytes of ``capacity`` not used (``sum(delivered) + idle == capacity``).
+    banked : int
+        Idle bytes kept for the next slot (cumulative budget; 0 per slot).
+    """
+
+    slot: int
+    capacity: int
+    delivered: dict
+    started: tuple
+    completed: tuple
+    dropped: tuple
+    in_flight: tuple
+    idle: int
+    banked: int
+
+    @property
+    def bytes(self) -> int:
+        """Bytes delivered in this slot."""
+        return sum(self.delivered.values())
+
+
+def _byte_count(value, name: str, index: int | None = None, *, positive: bool = False) -> int:
+    where = name if index is None else f"{name}[{index}]"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float, np.floating)):
+        raise LinkError(f"{where} = {value!r}: must be an integer number of bytes")
+    if isinstance(value, (float, np.floating)) and not (np.isfinite(value) and float(value).is_integer()):
+        raise LinkError(f"{where} = {value!r}: must be an integer number of bytes")
+    v = int(value)
+    if v < (1 if positive else 0):
+        raise LinkError(f"{where} = {v}: must be {'> 0' if positive else '>= 0'} bytes")
+    if v > MAX_SLOT_BYTES:
+        raise LinkError(f"{where} = {v}: more than 2^53 bytes (MAX_SLOT_BYTES)")
+    return v
+
+
+@dataclass
+class Link:
+    """A sequential link over ``len(bandwidth)`` slots (see the module docstring).
+
+    Parameters
+    ----------
+    bandwidth : sequence of int, shape [T]
+        Bytes the trace allows in each slot (bytes per slot, >= 0).
+    budget : {"per_slot", "cumulative"}
+        Whether idle bytes are lost or banked for the next slot.
+
+    Raises
+    ------
+    LinkError
+        A negative or fractional byte count (naming the index), an unknown budget.
+    """
+
+    bandwidth: Sequence[int]
+    budget: str = "per_slot"
+    slot: int = field(default=0, init=False)
+    bank: int = field(default=0, init=False)
+    in_flight: list = field(default_factory=list, init=False)
+
+    def __post_init__(self) -> None:
+        if self.budget not in BUDGETS:
+            raise LinkError(f"budget = {self.budget!r}: must be one of {', '.join(BUDGETS)}")
+        self.bandwidth = [_byte_count(b, "bandwidth", i) for i, b in enumerate(self.bandwidth)]
+
+    @property
+    def slots(self) -> int:
+        return len(self.bandwidth)
+
+    @property
+    def in_flight_bytes(self) -> int:
+        """Bytes still to come of the transfers cut off at the end of the last slot."""
+        return sum(tr.remaining for tr in self.in_flight)
+
+    def demand(self, requests: Sequence[tuple[Hashable, int]] = ()) -> int:
+        """Bytes the link would move next slot with ``requests`` if nothing limited it, beyond
+        its bank: what it asks of a shared bottleneck."""
+        return max(0, self.in_flight_bytes + sum(int(size) for _, size in requests) - self.bank)
+
+    def step(self, requests: Sequence[tuple[Hashable, int]] = (), *, bandwidth: int | None = None) -> SlotDelivery:
+        """Run the next slot with ``requests`` (``(key, size in bytes)``, in sending order).
+
+        ``bandwidth`` (bytes) replaces the slot's entry of the trace first: a link whose share
+        of a bottleneck is decided as the slot runs (see :func:`max_min_shares`).
+
+        Raises
+        ------
+        LinkError
+            Past the last slot; a size that is not a positive integer; a key requested twice or
+            already in flight (naming the request's index).
+        """
+        if self.slot >= self.slots:
+            raise LinkError(f"slot {self.slot}: the trace has only {self.slots} slots")
+        if bandwidth is not None:
+            self.bandwidth[self.slot] = _byte_count(bandwidth, "bandwidth", self.slot)
+        busy = {tr.key for tr in self.in_flight}
+        queue = list(self.in_flight)
+        for i, req in enumerate(requests):
+            try:
+                key, size = req
+            except (TypeError, ValueError):
+                raise LinkError(f"requests[{i}] = {req!r}: must be a (key, bytes) pair") from None
+            size = _byte_count(size, "requests", i, positive=True)
+            if key in busy:
+                raise LinkError(f"requests[{i}]: key {key!r} is requested twice or already in flight")
+            busy.add(key)
+            queue.append(Transfer(key, size))
+        capacity = self.bandwidth[self.slot] + self.bank
+        left = capacity
+        delivered: dict = {}
+        started, completed, carried, dropped = [], [], [], []
+        for tr in queue:
+            if left <= 0:
+                (carried if tr.delivered else dropped).append(tr)
+                continue
+            if tr.delivered == 0:
+                started.append(tr.key)
+            take = min(left, tr.remaining)
+            tr.delivered += take
+            left -= take
+            delivered[tr.key] = take
+            if tr.remaining == 0:
+                completed.append(tr.key)
+            else:
+                carried.append(tr)
+        self.in_flight = carried
+        self.bank = left if self.budget == "cumulative" else 0
+        out = SlotDelivery(slot=self.slot, capacity=capacity, delivered=delivered, started=tuple(started),
+                           completed=tuple(completed), dropped=tuple(tr.key for tr in dropped),
+                           in_flight=tuple((tr.key, tr.remaining) for tr in carried), idle=left, banked=self.bank)
+        self.slot += 1
+        return out
+
+
+def split_bytes(total: int, parts: int) -> list[int]:
+    """``total`` bytes in ``parts`` near-equal integer parts, the larger ones first (they sum to ``total``)."""
+    total = _byte_count(total, "total")
+    if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
+        raise LinkError(f"parts = {parts!r}: must be a positive integer")
+    q, r = divmod(total, int(parts))
+    return [q + (1 if i < r else 0) for i in range(int(parts))]
+
+
+def max_min_shares(total: int, demands: Sequence[int]) -> list[int]:
+    """Split ``total`` bytes of a bottleneck max-min fairly among clients with ``demands`` (bytes).
+
+    Water-filling in whole bytes: every client gets ``min(demand, level)`` for the largest
+    level the bytes allow, the bytes left below the next level go one each to the unsatisfied
+    clients in index order; when every demand is met, the bytes nobody can use are split
+    equally (lower indices first) so that the shares always sum to ``total``. The same as
+    handing out single bytes round-robin in index order, first to clients still short of
+    their demand, then to all.
+
+    Raises
+    ------
+    LinkError
+        A negative or fractional byte count, naming the index.
+
+    Example
+    -------
+    >>> max_min_shares(10, [2, 100, 100])
+    [2, 4, 4]
+    >>> max_min_shares(10, [1, 1])
+    [5, 5]
+    """
+    total = _byte_count(total, "total")
+    d = [_byte_count(v, "demands", i) for i, v in enumerate(demands)]
+    K = len(d)
+    if K == 0:
+        raise LinkError("demands: at least one client is needed")
+    if sum(d) <= total:
+        q, r = divmod(total - sum(d), K)
+        return [d[i] + q + (1 if i < r else 0) for i in range(K)]
+    # The largest level m with sum(min(d, m)) <= total (0 <= m < max(d)), by bisection.
+    lo, hi = 0, max(d)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if sum(min(v, mid) for v in d) <= total:
+            lo = mid
+        else:
+            hi = mid
+    out = [min(v, lo) for v in d]
+    left = total - sum(out)
+    for i in range(K):
+        if left == 0:
+            break
+        if d[i] > lo:
+            out[i] += 1
+            left -= 1
+    return out

@@ -1,0 +1,318 @@
+"""Viewer poses: headset logs, camera-path files, synthetic paths, and the pose -> camera mapping.
+
+Headset logs have one line per sample::
+
+    2024-06-20 17:48:42, Head Position: (0.00, 1.49, 0.52), Head Rotation: (3.92, 351.06, 359.03), ...
+
+positions in metres (y up), rotations as Euler angles in degrees; timestamps have one-second
+resolution with many lines per second, so sub-second times are inferred by spreading each second's
+lines evenly over it (line k of n in second s is at ``s + k / n``). Leading lines whose head
+position and rotation are all zero (the headset not yet tracking) are dropped. Lines that do not
+parse are skipped with one warning that counts them (given only when the log is read; a log that
+is refused gives its error alone).
+
+Non-physical poses are refused by name (line and field), never rendered: a head position
+coordinate beyond :data:`MAX_POSITION_M` metres or an angle beyond :data:`MAX_ANGLE_DEG` degrees
+(a camera 10^308 m away sees nothing, and its empty picture would score like a perfect one).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import warnings
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from l3gs_opt.errors import L3gsError
+from l3gs_opt.input_files import read_text
+from l3gs_opt.traces.bandwidth import iter_lines
+
+__all__ = ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
+           "write_camera_path", "synthetic_poses", "euler_to_matrix", "MAX_POSITION_M", "MAX_ANGLE_DEG",
+           "MAX_POSE_FILE_BYTES"]
+
+#: Largest |coordinate| of a head position (m): 1000 km, far beyond any tracked space.
+MAX_POSITION_M = 1e6
+#: Largest |angle| of a head rotation (degrees): logs hold [0, 360); unwrapped ones may add turns.
+MAX_ANGLE_DEG = 1e6
+#: Largest pose log or camera path file read (bytes): ~250,000 poses of ~250 characters, a day at 30 Hz.
+MAX_POSE_FILE_BYTES = 64 * 2**20
+
+
+class PoseError(L3gsError, ValueError):
+    """A pose log or camera path is missing, empty or malformed."""
+
+
+@dataclass(frozen=True, eq=False)
+class PoseTrace:
+    """Head poses over time.
+
+    Attributes
+    ----------
+    time_s : float array [N]
+        Seconds from the first kept sample.
+    position : float array [N, 3]
+        Metres, in the log's frame (y up).
+    rotation_deg : float array [N, 3]
+        Euler angles in degrees (x, y, z as logged).
+    skipped : int
+        Lines that did not parse.
+    """
+
+    time_s: np.ndarray
+    position: np.ndarray
+    rotation_deg: np.ndarray
+    skipped: int = 0
+
+    def __post_init__(self) -> None:
+        n = len(self.time_s)
+        if self.position.shape != (n, 3) or self.rotation_deg.shape != (n, 3):
+            raise PoseError(f"pose arrays disagree: time {n}, position {self.position.shape}, "
+                            f"rotation {self.rotation_deg.shape}")
+        if not np.all(np.isfinite(self.time_s)):
+            i = int(np.argmax(~np.isfinite(self.time_s)))
+            raise PoseError(f"time_s[{i}] = {float(self.time_s[i])!r}: must be finite")
+        _check_pose_values(self.position, self.rotation_deg, lambda i: f"sample {i}",
+                           ("position", "rotation_deg"))
+
+    @property
+    def rate_hz(self) -> float:
+        """Samples per second (median spacing)."""
+        if len(self.time_s) < 2:
+            return 0.0
+        return float(1.0 / np.median(np.diff(self.time_s)))
+
+    @property
+    def features(self) -> np.ndarray:
+        """``[N, 6]``: x, y, z (m) and the three angles (deg)."""
+        return np.concatenate([self.position, self.rotation_deg], axis=1)
+
+
+_NUM = r"(-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)"
+_TRIPLE = rf"\(\s*{_NUM}\s*,\s*{_NUM}\s*,\s*{_NUM}\s*\)"
+_LINE = re.compile(rf"^\s*(\d{{4}}-\d\d-\d\d \d\d:\d\d:\d\d(?:\.\d+)?)\s*,\s*Head Position:\s*{_TRIPLE}\s*,"
+                   rf"\s*Head Rotation:\s*{_TRIPLE}")
+_EPOCH = datetime(1970, 1, 1)
+
+
+def _pose_error(field: str, message: str) -> PoseError:
+    return PoseError(f"{field}: {message}")
+
+
+def _check_pose_values(position: np.ndarray, rotation_deg: np.ndarray, where: Callable[[int], str],
+                       names: tuple[str, str]) -> None:
+    """Refuse a non-finite or non-physical pose: ``where(row)`` and ``names`` (position, rotation)
+    label the message, e.g. ``line 7: Head Position[0] = 1e+308: ...``."""
+    for values, name, limit, unit, constant in ((position, names[0], MAX_POSITION_M, "m", "MAX_POSITION_M"),
+                                                (rotation_deg, names[1], MAX_ANGLE_DEG, "degrees", "MAX_ANGLE_DEG")):
+        bad = ~(np.abs(values) <= limit)
+        if bad.any():
+            i, c = (int(k) for k in np.argwhere(bad)[0])
+            raise PoseError(f"{where(i)}: {name}[{c}] = {float(values[i, c])!r}: must be finite and within "
+                            f"+-{limit:g} {unit} ({constant})")
+
+
+def read_pose_log(path: str | os.PathLike[str]) -> PoseTrace:
+    """Parse a headset log (see the module docstring).
+
+    Raises
+    ------
+    PoseError
+        Missing or non-regular file, no parsable line after the leading not-tracking lines, a
+        non-finite or non-physical pose (naming the line and the field), timestamps going backwards.
+    """
+    path = Path(path)
+    if not path.exists() and not path.is_symlink():
+        raise PoseError(f"{path}: no such pose log")
+    text = read_text(path, _pose_error, field="pose log", max_bytes=MAX_POSE_FILE_BYTES, errors="replace")
+    stamps: list[float] = []
+    values: list[list[float]] = []
+    numbers: list[int] = []
+    skipped = 0
+    for number, line in iter_lines(text):
+        if not line.strip():
+            continue
+        m = _LINE.match(line)
+        if not m:
+            skipped += 1
+            continue
+        try:  # naive stamps, read as written (no time zone, no daylight-saving jumps)
+            when = (datetime.fromisoformat(m.group(1)) - _EPOCH).total_seconds()
+        except ValueError:
+            skipped += 1
+            continue
+        stamps.append(when)
+        values.append([float(g) for g in m.groups()[1:]])
+        numbers.append(number)
+    arr = np.asarray(values, dtype=np.float64).reshape(-1, 6)
+    _check_pose_values(arr[:, :3], arr[:, 3:], lambda i: f"{path}: line {numbers[i]}",
+                       ("Head Position", "Head Rotation"))
+    first = next((i for i, v in enumerate(values) if any(x != 0.0 for x in v)), None)
+    if first is None:
+        raise PoseError(f"{path}: no tracked pose sample found"
+                        + (f" ({skipped} line(s) are not pose samples)" if skipped else ""))
+    raw, arr, numbers = np.asarray(stamps[first:]), arr[first:], numbers[first:]
+    if (np.diff(raw) < 0).any():
+        bad = int(np.argmax(np.diff(raw) < 0)) + 1
+        raise PoseError(f"{path}: line {numbers[bad]}: timestamp goes backwards (sample {bad + first})")
+    if skipped:
+        warnings.warn(f"{path}: skipped {skipped} line(s) that are not pose samples", stacklevel=2)
+    # Spread each second's lines evenly over it.
+    times = np.empty(len(raw))
+    start = 0
+    while start < len(raw):
+        end = start
+        while end < len(raw) and raw[end] == raw[start]:
+            end += 1
+        count = end - start
+        times[start:end] = raw[start] + np.arange(count) / count
+        start = end
+    return PoseTrace(time_s=times - times[0], position=arr[:, :3], rotation_deg=arr[:, 3:], skipped=skipped)
+
+
+def write_pose_log(trace: PoseTrace, path: str | os.PathLike[str], *, start: float = 1_718_900_000.0) -> Path:
+    """Write a headset log (controllers logged as zeros); times are rounded down to whole seconds."""
+    path = Path(path)
+    out = []
+    for t, p, r in zip(trace.time_s, trace.position, trace.rotation_deg):
+        stamp = datetime.fromtimestamp(int(start + t)).strftime("%Y-%m-%d %H:%M:%S")
+        zero = "(0.00, 0.00, 0.00)"
+        out.append(f"{stamp}, Head Position: ({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}), "
+                   f"Head Rotation: ({r[0] % 360:.4f}, {r[1] % 360:.4f}, {r[2] % 360:.4f}), "
+                   f"Left Controller Position: {zero}, Left Controller Rotation: {zero}, "
+                   f"Right Controller Position: {zero}, Right Controller Rotation: {zero}")
+    path.write_text("\n".join(out) + "\n", encoding="utf-8")
+    return path
+
+
+def _axis_rotation(axis: str, deg: np.ndarray) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    one, zero = np.ones_like(a), np.zeros_like(a)
+    if axis == "x":
+        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
+    elif axis == "y":
+        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
+    else:
+        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
+    return np.moveaxis(np.array(rows), [0, 1], [-2, -1])
+
+
+def euler_to_matrix(angles_deg: np.ndarray, order: str = "ZXY") -> np.ndarray:
+    """``[..., 3]`` angles (about x, y, z, degrees) -> ``[..., 3, 3]`` rotation matrices.
+
+    ``order`` lists the axes in the order the rotations are applied to a vector (extrinsic):
+    ``"ZXY"`` (Unity's convention) is ``R = Ry @ Rx @ Rz``.
+    """
+    angles_deg = np.asarray(angles_deg, dtype=np.float64)
+    index = {"x": 0, "y": 1, "z": 2}
+    R = np.broadcast_to(np.eye(3), angles_deg.shape[:-1] + (3, 3)).copy()
+    for axis in order.lower():
+        R = _axis_rotation(axis, angles_deg[..., index[axis]]) @ R
+    return R
+
+
+@dataclass(frozen=True)
+class PoseMapping:
+    """How a logged head pose becomes the renderer's OpenCV ``world_to_camera``.
+
+    The log's frame is Unity-like: x right, y up, z forward, left-handed; a camera looks along its
+    +z with y up. The renderer's camera looks along +z with y *down* (OpenCV). With ``W`` =
+    ``world_from_log`` (3x3) and ``R`` the logged rotation (``euler_order``), the camera-to-world
+    rotation is ``W @ R @ diag(1, -1, 1)`` and the camera centre ``scale * W @ p + offset``.
+    ``W`` must flip handedness (determinant -1). The default ``W = diag(1, -1, 1)`` makes the
+    world right-handed with y down, like OpenCV; pass another ``W`` (e.g. one that maps the log's
+    y-up to a z-up scene's z) to match a scene's frame.
+    """
+
+    world_from_log: tuple[tuple[float, ...], ...] = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0))
+    euler_order: str = "ZXY"
+    scale: float = 1.0
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        W = np.asarray(self.world_from_log, dtype=np.float64)
+        if W.shape != (3, 3) or not np.allclose(W @ W.T, np.eye(3), atol=1e-9):
+            raise PoseError("world_from_log: must be a 3x3 orthogonal matrix")
+        if np.linalg.det(W) > 0:
+            raise PoseError("world_from_log: must have determinant -1: the log's frame is left-handed and the "
+                            "renderer's world is right-handed, so the map must flip handedness")
+        if sorted(self.euler_order.lower()) != ["x", "y", "z"]:
+            raise PoseError(f"euler_order {self.euler_order!r}: must be a permutation of XYZ")
+        if not (self.scale > 0 and math.isfinite(self.scale)):
+            raise PoseError(f"scale {self.scale!r}: must be a positive number")
+
+    def world_to_camera(self, position: np.ndarray, rotation_deg: np.ndarray) -> np.ndarray:
+        """``[N, 3]`` positions and ``[N, 3]`` angles -> ``[N, 4, 4]`` world-to-camera matrices."""
+        W = np.asarray(self.world_from_log, dtype=np.float64)
+        flip = np.diag([1.0, -1.0, 1.0])
+        R_cw = W @ euler_to_matrix(rotation_deg, self.euler_order) @ flip  # det(W) = det(flip) = -1: proper
+        centre = self.scale * np.asarray(position, dtype=np.float64) @ W.T + np.asarray(self.offset)
+        out = np.zeros(np.shape(position)[:-1] + (4, 4))
+        R_wc = np.swapaxes(R_cw, -1, -2)
+        out[..., :3, :3] = R_wc
+        out[..., :3, 3] = -(R_wc @ centre[..., None])[..., 0]
+        out[..., 3, 3] = 1.0
+        return out
+
+
+def read_camera_path(path: str | os.PathLike[str]) -> np.ndarray:
+    """Camera path file: 4x4 world-to-camera matrices, 4 rows each, blank line between -> ``[N, 4, 4]``."""
+    path = Path(path)
+    if not path.exists() and not path.is_symlink():
+        raise PoseError(f"{path}: no such camera path")
+    text = read_text(path, _pose_error, field="camera path", max_bytes=MAX_POSE_FILE_BYTES)
+    blocks = [b for b in re.split(r"\n\s*\n", text.strip()) if b.strip()]
+    if not blocks:
+        raise PoseError(f"{path}: no matrix found")
+    mats = []
+    for k, block in enumerate(blocks):
+        rows = [r.split() for r in block.strip().splitlines()]
+        try:
+            m = np.array([[float(v) for v in row] for row in rows])
+        except ValueError:
+            raise PoseError(f"{path}: matrix {k}: entries must be numbers") from None
+        if m.shape != (4, 4) or not np.isfinite(m).all():
+            raise PoseError(f"{path}: matrix {k}: expected 4 rows of 4 finite numbers, got shape {m.shape}")
+        mats.append(m)
+    return np.stack(mats)
+
+
+def write_camera_path(matrices: np.ndarray, path: str | os.PathLike[str]) -> Path:
+    path = Path(path)
+    path.write_text("\n\n".join("\n".join(" ".join(f"{v:.9g}" for v in row) for row in m) for m in matrices) + "\n",
+                    encoding="utf-8")
+    return path
+
+
+def synthetic_poses(kind: str = "walk", *, seconds: float = 60.0, rate_hz: float = 30.0, seed: int = 0) -> PoseTrace:
+    """Synthetic head motion: ``walk`` (slow walk, gentle head turns), ``orbit`` (circling a
+    point while looking at it), ``fast_turns`` (standing, quick 60-120 degree head turns)."""
+    rng = np.random.default_rng(seed)
+    n = int(round(seconds * rate_hz))
+    t = np.arange(n) / rate_hz
+    if kind == "walk":
+        heading = np.cumsum(rng.normal(0, 0.6, n)) / rate_hz * 10
+        speed = 0.6
+        x = np.cumsum(speed * np.sin(np.radians(heading))) / rate_hz
+        z = np.cumsum(speed * np.cos(np.radians(heading))) / rate_hz
+        pos = np.stack([x, 1.6 + 0.02 * np.sin(2 * np.pi * 1.8 * t), z], axis=1)
+        rot = np.stack([5 * np.sin(0.3 * t), heading + 15 * np.sin(0.5 * t), 2 * np.sin(0.7 * t)], axis=1)
+    elif kind == "orbit":
+        ang = 360.0 * t / max(seconds, 1e-9)
+        pos = np.stack([3 * np.sin(np.radians(ang)), np.full(n, 1.6), -3 * np.cos(np.radians(ang))], axis=1)
+        rot = np.stack([np.full(n, 10.0), -ang, np.zeros(n)], axis=1)
+    elif kind == "fast_turns":
+        targets = np.cumsum(rng.choice([-1, 1], size=int(seconds) + 2) * rng.uniform(60, 120, int(seconds) + 2))
+        yaw = np.interp(t, np.arange(len(targets)) * 2.0, targets)
+        pos = np.stack([np.zeros(n), np.full(n, 1.6), np.zeros(n)], axis=1) + rng.normal(0, 0.005, (n, 3))
+        rot = np.stack([rng.normal(0, 2, n), yaw, np.zeros(n)], axis=1)
+    else:
+        raise PoseError(f"synthetic pose kind {kind!r} is not one of walk, orbit, fast_turns")
+    return PoseTrace(time_s=t, position=pos, rotation_deg=(rot + 180.0) % 360.0 - 180.0)
