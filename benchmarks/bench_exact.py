@@ -53,7 +53,7 @@ def specs(seeds_20: int, seeds_200: int) -> list:
 
 def run(args: argparse.Namespace) -> None:
     from l3gs_opt.solvers.bounds import lp_bound
-    from l3gs_opt.solvers.lagrange import gap_data, lp_multipliers, subgradient
+    from l3gs_opt.solvers.exact.lagrange import gap_data, lp_multipliers, subgradient
 
     path = Path(args.out) / "exact_runs.jsonl"
     done = set()

@@ -33,7 +33,7 @@ def _exact(instance: Instance, *, slot: int | None = None, time_limit_s: float |
     # registry naming it too would be an import cycle.
     import warnings
 
-    from l3gs_opt.solvers.exact import solve_exact
+    from l3gs_opt.solvers.exact.search import solve_exact
 
     known = ("branching", "lns_width", "heuristics", "max_nodes")
     opts = dict(options or {})

@@ -19,7 +19,7 @@ from .rolling import solve_mpc, solve_rolling
 from .exact import solve_exact
 from .items import (solve_items, solve_items_brute_force, solve_items_mpc, solve_items_rolling,
                     solve_items_slot)
-from .lagrange import gap_data, lagrangian_value, lp_multipliers, subgradient
+from .exact.lagrange import gap_data, lagrangian_value, lp_multipliers, subgradient
 
 __all__ = [
     "MAX_SCHEDULES",

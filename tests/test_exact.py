@@ -18,12 +18,12 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.problem.solution import GAP_TOL, Status
 from l3gs_opt.solvers.brute_force import solve_brute_force
-from l3gs_opt.solvers.colgen import ColumnPool, column_generation
-import l3gs_opt.solvers.exact as exact_module
-from l3gs_opt.solvers.exact import _split_masks, local_search, reduced_cost_fixing, round_schedule, solve_exact
-from l3gs_opt.solvers.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
+from l3gs_opt.solvers.exact.colgen import ColumnPool, column_generation
+import l3gs_opt.solvers.exact.search as exact_module
+from l3gs_opt.solvers.exact.search import _split_masks, local_search, reduced_cost_fixing, round_schedule, solve_exact
+from l3gs_opt.solvers.exact.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
                                        lagrangian_value, subgradient)
-from l3gs_opt.solvers.lns import improve_window, lp_neighbourhood, reduced_mip
+from l3gs_opt.solvers.exact.lns import improve_window, lp_neighbourhood, reduced_mip
 
 #: Options ``exact`` accepts: both availabilities, same-slot and strict layers (per-slot budget).
 ACCEPTED = PER_SLOT_OPTIONS
@@ -166,7 +166,7 @@ def test_reduced_mip_sparse_and_dense_rows_equal_the_ilp(opts: Options, seed: in
 def test_lp_neighbourhood_is_feasible_and_contains_its_centre(seed: int, opt: int) -> None:
     """Around the LP solution: feasible and better than the cut-off, or None. Around an optimal
     schedule's own x (every chunk wholly in one slot): that schedule's value is found again."""
-    from l3gs_opt.solvers.lagrange import lp_multipliers
+    from l3gs_opt.solvers.exact.lagrange import lp_multipliers
 
     rng = np.random.default_rng(seed)
     inst = random_instance(rng, T=5, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
@@ -356,7 +356,7 @@ def test_reduced_mip_restart_returns_feasible_schedule_and_valid_bound(seed: int
 def test_lp_neighbourhood_bands_are_nested(seed: int) -> None:
     """Band 0 within band 1 within band T (which is the whole problem): solved exactly, their
     optima never decrease, and band T equals the core's ILP."""
-    from l3gs_opt.solvers.lagrange import lp_multipliers
+    from l3gs_opt.solvers.exact.lagrange import lp_multipliers
 
     rng = np.random.default_rng(4000 + seed)
     inst = random_instance(rng, T=6, J=4, L=3, options=ACCEPTED[seed], tight=0.3)
@@ -377,7 +377,7 @@ def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
     """With RESTART_SHRINK = 1 HiGHS is restarted at every improving schedule it finds (no start
     heuristics, one-slot windows: the primal side leaves it some to find): the answers still equal
     the core's ILP, and at least one run restarted."""
-    import l3gs_opt.solvers.exact as exact_mod
+    import l3gs_opt.solvers.exact.search as exact_mod
 
     monkeypatch.setattr(exact_mod, "RESTART_SHRINK", 1.0)
     outcomes = []
@@ -393,7 +393,7 @@ def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
 
 
 def test_subgradient_from_lp_duals_is_a_valid_bound_no_worse_than_its_start() -> None:
-    from l3gs_opt.solvers.lagrange import lp_multipliers
+    from l3gs_opt.solvers.exact.lagrange import lp_multipliers
 
     rng = np.random.default_rng(8)
     inst = random_instance(rng, T=8, J=5, L=3, tight=0.3)
@@ -411,7 +411,7 @@ def test_exact_knapsack_fixing_keeps_every_better_schedule(seed: int, opt: int, 
     """Fixing with the knapsack solved exactly removes at least what the Dantzig test removes, and
     never a pair of the optimum when the incumbent value is below it (at the LP duals and at the
     column-generation duals)."""
-    from l3gs_opt.solvers.lagrange import lp_multipliers
+    from l3gs_opt.solvers.exact.lagrange import lp_multipliers
 
     rng = np.random.default_rng(seed)
     inst = random_instance(rng, T=6, J=4, L=3, options=ACCEPTED[opt], tight=0.3)

@@ -11,9 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from core_helpers import PER_SLOT_OPTIONS, random_instance
-from l3gs_opt.solvers.exact import round_schedule
-from l3gs_opt.solvers.lagrange import assignment_feasible, assignment_value, chunk_profits, gap_data
-from l3gs_opt.solvers.repair import GAIN_TOL, _keep_mask, _room_for, level_repair
+from l3gs_opt.solvers.exact.search import round_schedule
+from l3gs_opt.solvers.exact.lagrange import assignment_feasible, assignment_value, chunk_profits, gap_data
+from l3gs_opt.solvers.exact.repair import GAIN_TOL, _keep_mask, _room_for, level_repair
 
 ACCEPTED = PER_SLOT_OPTIONS
 

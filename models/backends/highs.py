@@ -59,6 +59,33 @@ def _interrupt_after(h: highspy.Highs, time_limit_s: float) -> None:
         hook.subscribe(check)
 
 
+#: HiGHS's MIP feasibility tolerance wherever a MIP's answer counts. With the default 1e-6, HiGHS
+#: 1.14 let an integer carry of a digit row sit 1e-6 off an integer (a byte off at 2**20) and
+#: pruned the optimum of prescaled strongly correlated MCKPs (tests/test_backends.py); our rows have
+#: integer data, so the tighter tolerance costs no feasible point.
+MIP_FEASIBILITY_TOL = 1e-9
+
+
+def new_highs(*, time_limit_s: float | None = None, mip: bool = False) -> highspy.Highs:
+    """A quiet HiGHS, set up as every caller here needs it (this adapter, exact's LPs and MIPs).
+
+    ``time_limit_s`` (seconds) is HiGHS's own limit and a wall-clock interrupt
+    (:func:`_interrupt_after`). ``mip``: zero relative and absolute gaps (``kOptimal`` then means
+    proven), :data:`MIP_FEASIBILITY_TOL`, presolve rule 13 off (:data:`PARALLEL_RULE_OFF`).
+    """
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    if time_limit_s is not None:
+        h.setOptionValue("time_limit", float(time_limit_s))
+        _interrupt_after(h, time_limit_s)
+    if mip:
+        h.setOptionValue("mip_rel_gap", 0.0)
+        h.setOptionValue("mip_abs_gap", 0.0)
+        h.setOptionValue("mip_feasibility_tolerance", MIP_FEASIBILITY_TOL)
+        h.setOptionValue("presolve_rule_off", PARALLEL_RULE_OFF)
+    return h
+
+
 def version() -> str:
     return f"highspy {_pkg_version('highspy')}"
 
@@ -68,8 +95,8 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     status_map = {ms.kOptimal: Status.OPTIMAL, ms.kTimeLimit: Status.TIME_LIMIT, ms.kInfeasible: Status.INFEASIBLE,
                   ms.kIterationLimit: Status.TIME_LIMIT, ms.kSolutionLimit: Status.FEASIBLE,
                   ms.kInterrupt: Status.TIME_LIMIT}
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    mip = not relax and bool(model.integer.any())
+    h = new_highs(time_limit_s=time_limit_s, mip=mip)
     inf = highspy.kHighsInf
     lp = highspy.HighsLp()
     n, m = model.size.variables, model.size.constraints
@@ -97,21 +124,8 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     h.passModel(lp)
     if presolve_off:
         h.setOptionValue("presolve", "off")
-    h.setOptionValue("mip_rel_gap", 0.0)
-    h.setOptionValue("mip_abs_gap", 0.0)
-    if time_limit_s is not None:
-        h.setOptionValue("time_limit", float(time_limit_s))
-        _interrupt_after(h, time_limit_s)
-    # HiGHS 1.14 with the default 1e-6 MIP feasibility tolerance pruned the optimum of strongly
-    # correlated MCKPs once the objective was prescaled (coefficients ~1e6) and still reported
-    # kOptimal, one unit short (tests/test_backends.py pins two such instances); at 1e-9 it does
-    # not. Our rows have integer data, so the tighter tolerance costs no feasible point.
-    defaults: dict[str, Any] = {"mip_feasibility_tolerance": 1e-9}
-    if not relax and model.integer.any():
-        defaults["presolve_rule_off"] = PARALLEL_RULE_OFF
-        if model.byte_digits:
-            defaults["presolve"] = "off"
-    options = {**defaults, **options}
+    if mip and model.byte_digits:
+        options = {"presolve": "off", **options}
     for key, value in options.items():
         if key not in _KNOWN:
             warnings.warn(f"highs: unknown option {key!r} passed through to HiGHS", stacklevel=3)

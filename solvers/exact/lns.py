@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from l3gs_opt.models.backends.highs import PARALLEL_RULE_OFF, _interrupt_after  # HiGHS 1.14 overruns time_limit otherwise
+from l3gs_opt.models.backends.highs import new_highs
 
 from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
@@ -94,12 +94,7 @@ def improve_window(data: GapData, assign: np.ndarray, allowed: np.ndarray, start
             # u out keeps its later slot, lo out leaves: forbid (1 - sum x_u <= sum x_lo).
             rows.append((1.0, np.inf, [v for _, v in ui] + [v for _, v in li], [1.0] * (len(ui) + len(li))))
     nv = len(costs)
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
-    h.setOptionValue("time_limit", float(max(time_limit_s, 0.01)))
-    _interrupt_after(h, max(time_limit_s, 0.01))
-    h.setOptionValue("mip_rel_gap", 0.0)
-    h.setOptionValue("mip_feasibility_tolerance", 1e-9)
+    h = new_highs(time_limit_s=max(time_limit_s, 0.01), mip=True)
     inf = highspy.kHighsInf
     h.addCols(nv, -np.asarray(costs), np.zeros(nv), np.ones(nv), 0, np.zeros(nv, np.int32),
               np.zeros(0, np.int32), np.zeros(0))
@@ -268,17 +263,9 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
         return "optimal", None, incumbent
     var = -np.ones((n, T), dtype=np.int64)
     var[ii, tt] = np.arange(nv)
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
-    if time_limit_s is not None:
-        h.setOptionValue("time_limit", float(max(time_limit_s, 0.01)))
-        _interrupt_after(h, max(time_limit_s, 0.01))
-    h.setOptionValue("mip_rel_gap", 0.0)
-    h.setOptionValue("mip_abs_gap", 0.0)
-    h.setOptionValue("mip_feasibility_tolerance", 1e-9)
-    # Its proofs count: HiGHS's parallel-columns presolve rule has returned wrong optima (see
-    # models/backends/highs.py).
-    h.setOptionValue("presolve_rule_off", PARALLEL_RULE_OFF)
+    # Its proofs count: new_highs(mip=True) sets zero gaps and switches off the presolve rule that
+    # returned wrong optima (models/backends/highs.py).
+    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01), mip=True)
     for key, value in (highs_options or {}).items():
         h.setOptionValue(key, value)
     restart = [False]

@@ -370,7 +370,7 @@ def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.nd
 
 def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadline: float | None
            ) -> tuple[np.ndarray, str, dict[str, float]]:
-    from .registry import resolve   # the heuristics directly, not through the public solve()
+    from ..registry import resolve   # the heuristics directly, not through the public solve()
 
     best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
     best_val = assignment_value(data, best)

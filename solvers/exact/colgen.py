@@ -87,9 +87,10 @@ class Master:
                  forced: dict[int, int], big_m: float) -> None:
         import highspy
 
+        from l3gs_opt.models.backends.highs import new_highs
+
         self.data, self.pool, self.allowed, self.forced, self.big_m = data, pool, allowed, forced, big_m
-        self.h = highspy.Highs()
-        self.h.setOptionValue("output_flag", False)
+        self.h = new_highs()
         self.inf = highspy.kHighsInf
         n, T = data.n, data.T
         self.forced_by_slot: dict[int, set[int]] = {}

@@ -38,7 +38,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import presolve
 
-from . import _mckp
+from .. import _mckp
 
 __all__ = ["GapData", "gap_data", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
            "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
@@ -435,13 +435,9 @@ def lp_multipliers(data: GapData, *, time_limit_s: float | None = None
     lp.a_matrix_.start_ = A.indptr.astype(np.int32)
     lp.a_matrix_.index_ = A.indices.astype(np.int32)
     lp.a_matrix_.value_ = A.data
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
-    if time_limit_s is not None:
-        from l3gs_opt.models.backends.highs import _interrupt_after   # HiGHS 1.14 overruns time_limit
+    from l3gs_opt.models.backends.highs import new_highs
 
-        h.setOptionValue("time_limit", float(max(time_limit_s, 0.01)))
-        _interrupt_after(h, max(time_limit_s, 0.01))
+    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
     h.passModel(lp)
     h.run()
     if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
