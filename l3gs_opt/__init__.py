@@ -46,7 +46,8 @@ _LAZY = {
     "pipeline.scene_instance": ["instance_from_bundle"],
     "simulator.link": ["LinkError", "Link", "SlotDelivery", "max_min_shares", "split_bytes"],
     "simulator.simulation": ["SimulationError", "SimConfig", "Simulation", "SimulationResult", "SIM_METHODS"],
-    "experiments.run": ["ExperimentError", "ExperimentPlan", "make_plan", "run_experiments"],
+    "experiments.plan": ["ExperimentError", "ExperimentPlan", "make_plan"],
+    "experiments.run": ["run_experiments"],
     "simulator.shared": ["run_shared", "simulate_shared"],
     "simulator.render": ["RenderCache"],
     # The item form (l3gs-opt/items@1): precedence DAG and replacement groups (distill, hierarchy bundles).

@@ -7,6 +7,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.arguments import check_slot, check_time_limit
 from l3gs_opt.problem.instance import Instance, scale_exponent
 from l3gs_opt.problem.items import ItemInstance
@@ -110,6 +111,7 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
     """
     time_limit_s = check_time_limit(time_limit_s)
     slot = check_slot(slot, instance.T) if isinstance(instance, (Instance, ItemInstance)) else slot
+    _check_model_options(method, backend, form, presolve)
     if isinstance(instance, (Instance, ItemInstance)):
         exponent = scale_exponent(instance.utility, UTILITY_TOP)
         if not -UTILITY_BAND <= exponent <= UTILITY_BAND:
@@ -117,6 +119,32 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
                                  time_limit_s=time_limit_s, presolve=presolve, options=options)
     return _dispatch(instance, method, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
                      presolve=presolve, options=options)
+
+
+#: The options of ``solve`` each method family uses; a method given another one (not at its
+#: default) warns that it ignores it, e.g. ``exact`` with ``backend="scip"``.
+_USES = {"ilp": ("backend", "form", "presolve"), "lp": ("backend", "form", "presolve"),
+         "rolling": ("backend",), "rolling-future": ("backend",), "mpc": ("backend",)}
+_DEFAULTS = {"backend": "highs", "form": "standard", "presolve": True}
+
+
+def _check_model_options(method: Any, backend: Any, form: Any, presolve: Any) -> None:
+    """``backend`` and ``form`` must be known names whatever the method; an option given to a
+    method that does not use it is a warning (it would be dropped silently otherwise)."""
+    import warnings
+
+    from l3gs_opt.models import FORMS, Backend
+
+    Backend.parse(backend)
+    if form not in FORMS:
+        raise SolveError(f"form {form!r} is not one of {', '.join(FORMS)}")
+    if not isinstance(presolve, (bool, np.bool_)):
+        raise SolveError(f"presolve = {presolve!r}: must be true or false")
+    family = method.split(":", 1)[0] if isinstance(method, str) else method
+    given = {"backend": str(Backend.parse(backend)), "form": form, "presolve": bool(presolve)}
+    ignored = [k for k, v in given.items() if v != _DEFAULTS[k] and k not in _USES.get(family, ())]
+    if ignored:
+        warnings.warn(f"method {method!r} does not use {', '.join(ignored)}: ignored", UserWarning, stacklevel=3)
 
 
 #: Utilities are solved as they are while the largest lies within 2**(UTILITY_TOP +- UTILITY_BAND)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.arguments import check_slot
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import presolve
 
@@ -30,8 +31,7 @@ def build_model(instance: Instance, *, form: str = "standard", slot: int | None 
     if form not in FORMS:
         raise SolveError(f"form {form!r} is not one of {', '.join(FORMS)}")
     if slot is not None:
-        if isinstance(slot, bool) or not isinstance(slot, int) or not 0 <= slot < instance.T:
-            raise SolveError(f"slot = {slot!r}: must be an integer in 0..{instance.T - 1}")
+        slot = check_slot(slot, instance.T)
         if form != "standard":
             raise SolveError("a single-slot problem (slot) has no GAP form")
         return build_mckp(instance, slot, presolved=presolve_enabled)

@@ -28,6 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.arguments import check_slot
 from l3gs_opt.problem.instance import Options
 from l3gs_opt.problem.items import ItemInstance
 from l3gs_opt.problem.items_presolve import ItemReduction, presolve_items
@@ -60,12 +61,6 @@ class _ReductionView:
     active: np.ndarray   # [1, N]
 
 
-def _check_slot(instance: ItemInstance, slot: Any) -> int:
-    if isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or not 0 <= slot < instance.T:
-        raise SolveError(f"slot = {slot!r}: must be an integer in 0..{instance.T - 1}")
-    return int(slot)
-
-
 def build_items_model(instance: ItemInstance, *, slot: int | None = None,
                       presolve_enabled: bool = True) -> LinearModel:
     """The ILP of an item instance (see the module docstring), or with ``slot`` its single-slot
@@ -79,7 +74,7 @@ def build_items_model(instance: ItemInstance, *, slot: int | None = None,
     """
     target = instance
     if slot is not None:
-        slot = _check_slot(instance, slot)
+        slot = check_slot(slot, instance.T)
         target = instance.slot_instance(slot)
     red = presolve_items(target, enabled=presolve_enabled)
     model = _build(target, red, presolved=presolve_enabled, problem="items" if slot is None else "MCKP")

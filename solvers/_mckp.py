@@ -1,5 +1,10 @@
 """Array core of the single-slot multiple-choice knapsack (MCKP): options, LP hull, bb, dp, fptas.
 
+Length (~1,000 lines, one module on purpose): the option table's padded layout, the LP hull, the
+pruning tolerance and the compiled kernels' argument packing are shared by every algorithm here
+(bb, dp, fptas, greedy, the rolling schedulers' per-slot calls); split, each piece would import
+the others' privates.
+
 Everything here works on a padded option table (:class:`OptionTable`) rather than on an
 :class:`~l3gs_opt.problem.instance.Instance`, so that the rolling schedulers can call it each slot
 with their own valuation (e.g. future utility). :mod:`l3gs_opt.solvers.mckp` wraps it for

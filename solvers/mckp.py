@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.arguments import check_slot
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import shown_value
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
@@ -52,9 +53,7 @@ def resolve_slot(instance: Any, slot: int | None, method: str) -> int:
             return 0
         raise SolveError(f"method {method!r} solves one slot's MCKP: pass slot (0..{instance.T - 1}) for an "
                          f"instance with T = {instance.T} slots, or use rolling:{method} for the whole horizon")
-    if isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or not 0 <= slot < instance.T:
-        raise SolveError(f"slot = {slot!r}: must be an integer in 0..{instance.T - 1}")
-    return int(slot)
+    return check_slot(slot, instance.T)
 
 
 def slot_table(instance: Instance, slot: int, *, budget: int | None = None) -> tuple[OptionTable, float]:

@@ -121,7 +121,7 @@ def test_full_demo_with_quick_bench(tmp_path, capsys):
 def test_demo_step_five_runs_the_experiments_and_resumes(tmp_path, capsys, monkeypatch):
     """The demo's last step on the tiny experiments plan: a report with plots, one line per method,
     and a second demo in the same folder redoes nothing."""
-    import l3gs_opt.experiments.run as experiments
+    import l3gs_opt.experiments.plan as experiments
     from test_experiments import _tiny_plan
 
     plan = _tiny_plan()

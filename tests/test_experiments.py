@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from l3gs_opt.cli.main import main
-from l3gs_opt.experiments.run import (PAPER_SCENE_BYTES, ExperimentError, SceneSpec, _arrivals, make_plan,
-                                  run_experiments, scaled_mbps, trace_class)
+from l3gs_opt.experiments.plan import PAPER_SCENE_BYTES, ExperimentError, SceneSpec, make_plan, scaled_mbps, trace_class
+from l3gs_opt.experiments.run import _arrivals, run_experiments
 from l3gs_opt.experiments.report import summarize, write_report
 from l3gs_opt.problem.instance import Instance, Options
 from l3gs_opt.pipeline.build import BuildSchedule

@@ -462,7 +462,8 @@ def test_item5_simulate_same_method_refused_other_methods_allowed(tmp_path):
 
 
 def test_item5_experiments_refuse_a_second_writer(tmp_path, capsys):
-    from l3gs_opt.experiments.run import make_plan, run_experiments
+    from l3gs_opt.experiments.plan import make_plan
+    from l3gs_opt.experiments.run import run_experiments
 
     lock = OutputLock(tmp_path / "runs.jsonl.lock", field="test").acquire()
     try:

@@ -22,6 +22,7 @@ from typing import Any, Callable
 import numpy as np
 
 from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.arguments import check_slot
 from l3gs_opt.problem.instance import MAX_UTILITY_TOTAL, Instance
 from l3gs_opt.pipeline.synth import synth_instance
 from l3gs_opt.traces.bandwidth import bundled_traces, mbps_to_bytes
@@ -157,8 +158,7 @@ def _file(*, path: str, slot: int | None = None) -> Instance:
     inst = load_instance(path)
     if slot is None:
         return inst
-    if not 0 <= slot < inst.T:
-        raise SolveError(f"slot = {slot}: must be in 0..{inst.T - 1}")
+    slot = check_slot(slot, inst.T)
     return inst.replace(bandwidth=inst.bandwidth[slot:slot + 1], utility=inst.utility[slot:slot + 1])
 
 

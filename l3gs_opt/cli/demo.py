@@ -59,7 +59,8 @@ def _quick_bench(out_dir: Path) -> None:
 
 
 def _quick_experiments(out_dir: Path) -> None:
-    from l3gs_opt.experiments.run import make_plan, run_experiments
+    from l3gs_opt.experiments.plan import make_plan
+    from l3gs_opt.experiments.run import run_experiments
     from l3gs_opt.experiments.report import summarize, write_report
     from l3gs_opt.bench.run import read_records
 

@@ -21,7 +21,8 @@ def _list(text: str | None) -> list[str] | None:
 
 
 def _cmd_experiments(args: argparse.Namespace) -> int:
-    from l3gs_opt.experiments.run import RUNS_FILE, ExperimentError, SceneSpec, make_plan, run_experiments
+    from l3gs_opt.experiments.plan import RUNS_FILE, ExperimentError, SceneSpec, make_plan
+    from l3gs_opt.experiments.run import run_experiments
     from l3gs_opt.experiments.report import write_report
 
     out = Path(args.out)

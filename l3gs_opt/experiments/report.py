@@ -21,7 +21,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from l3gs_opt.experiments.run import BASELINES
+from l3gs_opt.experiments.plan import BASELINES
 
 __all__ = ["summarize", "write_report", "PAPER"]
 

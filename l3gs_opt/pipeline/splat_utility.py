@@ -1,5 +1,9 @@
 """The L3GS splat utility (the paper's Eq. 1), per object and layer, and precomputed tables.
 
+Length (~800 lines, one module on purpose): the per-viewpoint pass and the table builder share the
+compiled kernels and their argument packing (``_kernel_args``, ``_eq1_views``, ``_prepared``);
+split, the table module would import those privates.
+
 For splat i seen from a camera::
 
     U_i = closeness_i * overlap_i * opacity_i

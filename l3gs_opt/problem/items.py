@@ -1,5 +1,8 @@
 """The item instance (``l3gs-opt/items@1``): chunks with a precedence DAG and replacement groups.
 
+Length (~640 lines): the item form's validation (labels, edges, groups, held sets closed under
+precedence, each fault named) and its builders from the instance form and the bundle variants.
+
 Problems I and II (:class:`~l3gs_opt.problem.instance.Instance`) fix one structure per representation:
 a chain of layers per object, or a set of interchangeable versions per object. The bundle
 variants ``distill`` (a layer can be sent compact and upgraded later by its SH bytes) and

@@ -1,5 +1,8 @@
 """Pinhole cameras (OpenCV convention) and their file formats.
 
+Length (~650 lines): the camera type and the four file formats it is read from and written to
+(camera JSON, NeRF ``transforms.json``, COLMAP text and binary), each validated field by field.
+
 Convention (the standard 3DGS one): camera axes x right, y down, z forward; a world point
 ``p`` maps to camera coordinates ``R p + t`` with ``world_to_camera = [[R, t], [0, 0, 0, 1]]``
 and to the pixel position ``(fx x / z + cx, fy y / z + cy)``, where pixel ``(i, j)`` (column,
