@@ -1,5 +1,9 @@
 """``exact``: Problems I/III on Problem A (the GAP form) by decomposition, with certified gaps.
 
+Length (~800 lines): the primal moves (local search, rounding), the branching rules and the
+search itself (:class:`_Search`, one method per phase) share the node masks and the incumbent's
+representation; the bounds, columns, LNS and repair live in their own modules beside it.
+
 1. **Primal start**: the best of the heuristics (``rolling-future:bb``, ``slope``, ``rolling:bb``,
    and ``mpc:3`` on small scenes), then local search (move a chunk to an earlier slot, insert,
    swap two chunks between slots or out of the schedule), always feasible in integer bytes.
@@ -54,7 +58,7 @@ import numpy as np
 
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
-from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
+from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap
 
 from .colgen import ColumnPool, column_generation
 from . import lagrange
@@ -108,6 +112,9 @@ SWITCH_INTERVAL_S = 1e-4
 #: A node is closed when its bound is within this relative distance of the incumbent: below
 #: GAP_TOL so that a closed tree certifies an optimal gap.
 CLOSE_TOL = 0.1 * GAP_TOL
+#: A master value x (or a cumulative "arrived by t" share) below this, or above 1 minus it, counts
+#: as integral when choosing where to branch: the master LP's own round-off is ~1e-9.
+FRACTIONAL_TOL = 1e-6
 
 
 def _closed(bound: float, z: float) -> bool:
@@ -344,7 +351,7 @@ def _cumulative_split(data: GapData, x: np.ndarray) -> tuple[int, int] | None:
     """
     cum = np.cumsum(x, axis=1)
     split = np.minimum(cum, cum[:, -1:] - cum)
-    split[split < 1e-6] = 0.0
+    split[split < FRACTIONAL_TOL] = 0.0
     if split.max(initial=0.0) <= 0:
         return None
     drop = np.zeros_like(data.profit)
@@ -413,320 +420,374 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
         raise SolveError("method 'exact' schedules the whole horizon: slot does not apply (use 'bb' for one slot)")
     if branching not in BRANCHING:
         raise SolveError(f"branching = {branching!r} is not one of {', '.join(BRANCHING)}")
-    deadline = None if time_limit_s is None else started + float(time_limit_s)
-    data = gap_data(instance)
-    n, T = data.n, data.T
-    trace: list[tuple[float, float, float]] = []
-    hit_limit = False
-    details: dict[str, Any] = {"items": n, "slots": T, "presolve": dict(data.stats)}
+    search = _Search(instance, started=started, time_limit_s=time_limit_s, max_nodes=max_nodes, lns_width=lns_width,
+                     branching=branching)
+    search.start(heuristics)
+    if search.data.n == 0:
+        search.bound, search.bound_kind = search.z, "no chunk can arrive"
+    else:
+        search.root()
+        search.improve_at_root()
+        search.branch()
+    return search.finish()
 
-    def now() -> float:
-        return time.perf_counter() - started
 
-    def out_of_time() -> bool:
-        return deadline is not None and time.perf_counter() >= deadline
+class _Search:
+    """One run of ``exact``: the incumbent ``assign`` (value ``z``), the best bound and its kind,
+    the column pool and the Lagrangian certificates met, and one method per phase (start, root,
+    repair and LNS at the root, the MIP side, the price side, finish). Only the MIP side may run
+    in a second thread; it reads the incumbent and bound for the trace and hands its schedules over
+    through ``found`` (see :meth:`branch`)."""
 
-    if heuristics is None:
-        heuristics = START_HEURISTICS + (("mpc:3",) if instance.J * instance.L <= MPC_MAX_CHUNKS else ())
-    # The heuristics get at most a fifth of the time limit.
-    h_deadline = None if deadline is None else started + 0.2 * float(time_limit_s)
-    assign, start_name, start_values = (_start(instance, data, heuristics, h_deadline) if n else
-                                        (np.full(0, -1, np.int64), "empty", {}))
-    details["start"] = {"best": start_name, "values": start_values}
-    allowed0 = data.allowed
+    def __init__(self, instance: Instance, *, started: float, time_limit_s: float | None, max_nodes: int | None,
+                 lns_width: int, branching: str) -> None:
+        self.instance, self.started, self.time_limit_s = instance, started, time_limit_s
+        self.max_nodes, self.lns_width, self.branching = max_nodes, lns_width, branching
+        self.deadline = None if time_limit_s is None else started + float(time_limit_s)
+        self.data = data = gap_data(instance)
+        self.allowed0 = data.allowed
+        self.trace: list[tuple[float, float, float]] = []
+        self.hit_limit = False
+        self.details: dict[str, Any] = {"items": data.n, "slots": data.T, "presolve": dict(data.stats)}
+        self.pool = ColumnPool(data)
+        self.rows: list[tuple[int, int]] = []
+        self.bound = math.inf
+        self.bound_kind = "none"
+        self.nodes = 0
+        self.certificates: list[LagrangeValue] = []
+        self.assign = np.full(data.n, -1, dtype=np.int64)
+        self.z = assignment_value(data, self.assign)
 
-    def ls_deadline() -> float | None:
-        if deadline is None:
+    # -- clocks ----------------------------------------------------------------------------------
+    def now(self) -> float:
+        return time.perf_counter() - self.started
+
+    def out_of_time(self) -> bool:
+        return self.deadline is not None and time.perf_counter() >= self.deadline
+
+    def left(self) -> float | None:
+        """Seconds to the deadline (None without a limit)."""
+        return None if self.deadline is None else self.deadline - time.perf_counter()
+
+    def ls_deadline(self) -> float | None:
+        if self.deadline is None:
             return None
-        return min(deadline, time.perf_counter() + LOCAL_SEARCH_SHARE * float(time_limit_s) + 0.05)
+        return min(self.deadline, time.perf_counter() + LOCAL_SEARCH_SHARE * float(self.time_limit_s) + 0.05)
 
-    assign = local_search(data, assign, allowed0, deadline=ls_deadline())
-    z = assignment_value(data, assign)
-    details["after_local_search"] = z
-    pool = ColumnPool(data)
-    pool.add_assignment(assign)
-    rows: list[tuple[int, int]] = []
-    bound = math.inf
-    nodes = 0
-    bound_kind = "none"
-
-    def try_incumbent(cand: np.ndarray, allowed: np.ndarray, forced: Mapping[int, int]) -> None:
-        nonlocal assign, z
-        cand = local_search(data, cand, allowed, forced=forced, deadline=ls_deadline(), max_swaps=50)
-        if not assignment_feasible(data, cand):
+    # -- the incumbent ---------------------------------------------------------------------------
+    def try_incumbent(self, cand: np.ndarray, allowed: np.ndarray, forced: Mapping[int, int]) -> None:
+        cand = local_search(self.data, cand, allowed, forced=forced, deadline=self.ls_deadline(), max_swaps=50)
+        if not assignment_feasible(self.data, cand):
             return
-        value = assignment_value(data, cand)
-        if value > z:
-            assign, z = cand, value
-            pool.add_assignment(cand)
+        value = assignment_value(self.data, cand)
+        if value > self.z:
+            self.assign, self.z = cand, value
+            self.pool.add_assignment(cand)
 
-    def neighbourhood(x: np.ndarray, band: int = 0, share: float = NEIGHBOURHOOD_SHARE) -> None:
-        left = None if deadline is None else deadline - time.perf_counter()
+    def neighbourhood(self, x: np.ndarray, band: int = 0, share: float = NEIGHBOURHOOD_SHARE) -> None:
+        left = self.left()
         if left is not None and left <= 0:
             return
-        cand = lp_neighbourhood(data, x, allowed0, z, time_limit_s=None if left is None else share * left,
-                                start=assign, band=band)
+        cand = lp_neighbourhood(self.data, x, self.allowed0, self.z, time_limit_s=None if left is None else share * left,
+                                start=self.assign, band=band)
         if cand is not None:
-            try_incumbent(cand, allowed0, {})
+            self.try_incumbent(cand, self.allowed0, {})
 
-    def fixed_at(value: float, mask: np.ndarray, exact: bool = False) -> np.ndarray:
+    def fixed_at(self, value: float, mask: np.ndarray, exact: bool = False) -> np.ndarray:
         """``mask`` minus the pairs that no schedule better than ``value`` uses, by every
         Lagrangian certificate met so far (``exact``: the knapsack test too, on small instances,
         for at most EXACT_FIXING_SHARE of the time left)."""
-        exact = exact and n * T <= COLGEN_MAX_PAIRS
-        fix_deadline = None if deadline is None else \
-            time.perf_counter() + EXACT_FIXING_SHARE * max(deadline - time.perf_counter(), 0.0)
-        for lv in certificates:
-            mask = reduced_cost_fixing(data, lv, lv.bound, value, mask, exact_knapsack=exact, deadline=fix_deadline)
+        exact = exact and self.data.n * self.data.T <= COLGEN_MAX_PAIRS
+        fix_deadline = None if self.deadline is None else \
+            time.perf_counter() + EXACT_FIXING_SHARE * max(self.deadline - time.perf_counter(), 0.0)
+        for lv in self.certificates:
+            mask = reduced_cost_fixing(self.data, lv, lv.bound, value, mask, exact_knapsack=exact,
+                                       deadline=fix_deadline)
         return mask
 
-    certificates: list[LagrangeValue] = []
+    # -- phases ----------------------------------------------------------------------------------
+    def start(self, heuristics: tuple[str, ...] | None) -> None:
+        """The best start heuristic (at most a fifth of the time limit), then local search."""
+        data, instance = self.data, self.instance
+        if heuristics is None:
+            heuristics = START_HEURISTICS + (("mpc:3",) if instance.J * instance.L <= MPC_MAX_CHUNKS else ())
+        h_deadline = None if self.deadline is None else self.started + 0.2 * float(self.time_limit_s)
+        assign, start_name, start_values = (_start(instance, data, heuristics, h_deadline) if data.n else
+                                            (np.full(0, -1, np.int64), "empty", {}))
+        self.details["start"] = {"best": start_name, "values": start_values}
+        self.assign = local_search(data, assign, self.allowed0, deadline=self.ls_deadline())
+        self.z = assignment_value(data, self.assign)
+        self.details["after_local_search"] = self.z
+        self.pool.add_assignment(self.assign)
 
-    if n == 0:
-        bound, bound_kind = z, "no chunk can arrive"
-    else:
-        # Root LP: its duals are the first Lagrangian multipliers (and the stability centre of
-        # column generation), its solution is rounded into a schedule.
-        left = None if deadline is None else deadline - time.perf_counter()
-        lp_value, lp_mult, lp_x = lagrange.lp_multipliers(data, time_limit_s=left)
+    def root(self) -> None:
+        """Root LP (its duals: the first multipliers and column generation's stability centre; its
+        solution rounded into a schedule), then column generation, a Lagrangian bound every round."""
+        data, allowed0, T = self.data, self.allowed0, self.data.T
+        lp_value, lp_mult, lp_x = lagrange.lp_multipliers(data, time_limit_s=self.left())
         start_point = None
-        details["lp"] = {"value": lp_value, "seconds": now()}
+        self.details["lp"] = {"value": lp_value, "seconds": self.now()}
         # Every Lagrangian value met is a valid fixing certificate: keep the LP duals' one too.
         if lp_mult is not None:
             lv0 = lagrange.lagrangian_value(data, lp_mult)
             start_point = (lp_mult, lv0)
-            certificates.append(lv0)
-            details["lp"]["lagrangian_at_lp_duals"] = lv0.bound
+            self.certificates.append(lv0)
+            self.details["lp"]["lagrangian_at_lp_duals"] = lv0.bound
             for t in range(T):   # the knapsacks at the LP duals: first columns near the optimal duals
-                pool.add(t, np.nonzero(lv0.x[:, t])[0])
-            try_incumbent(round_schedule(data, lp_x, allowed0), allowed0, {})
-            neighbourhood(lp_x)
-            trace.append((now(), z, max(z, lv0.bound)))
-        # Root: column generation (a Lagrangian bound every round), then repair and fixing.
-        left = None if deadline is None else deadline - time.perf_counter()
-        big = n * T > COLGEN_MAX_PAIRS and start_point is not None
+                self.pool.add(t, np.nonzero(lv0.x[:, t])[0])
+            self.try_incumbent(round_schedule(data, lp_x, allowed0), allowed0, {})
+            self.neighbourhood(lp_x)
+            self.trace.append((self.now(), self.z, max(self.z, lv0.bound)))
+        left = self.left()
+        self.big = big = data.n * T > COLGEN_MAX_PAIRS and start_point is not None
         # A share of the time left: the primal side and the branching need the rest.
-        root = column_generation(data, pool, rows, allowed=allowed0, forced={}, incumbent=z,
+        root = column_generation(data, self.pool, self.rows, allowed=allowed0, forced={}, incumbent=self.z,
                                  time_limit_s=None if left is None else (0.0 if big else COLGEN_SHARE * left),
                                  max_iterations=1 if big else 100_000, stall_iterations=100_000, start=start_point)
+        self.root_cg = root
         if root.value is not (start_point[1] if start_point else None):
-            certificates.append(root.value)
-        bound = max(root.bound, z) if math.isfinite(root.bound) else z
-        bound_kind = ("Lagrangian at the LP duals (per-slot knapsacks solved exactly; column generation skipped)"
-                      if big else "Lagrangian (column-generation duals; per-slot knapsacks solved exactly)")
-        details["root"] = {"bound": root.bound, "master_lp": root.master, "iterations": root.iterations,
-                           "converged": root.converged, "seconds": now(), "columns": len(pool),
-                           "precedence_rows": len(rows), "colgen_skipped": bool(big)}
+            self.certificates.append(root.value)
+        self.bound = max(root.bound, self.z) if math.isfinite(root.bound) else self.z
+        self.bound_kind = ("Lagrangian at the LP duals (per-slot knapsacks solved exactly; column generation skipped)"
+                           if big else "Lagrangian (column-generation duals; per-slot knapsacks solved exactly)")
+        self.details["root"] = {"bound": root.bound, "master_lp": root.master, "iterations": root.iterations,
+                                "converged": root.converged, "seconds": self.now(), "columns": len(self.pool),
+                                "precedence_rows": len(self.rows), "colgen_skipped": bool(big)}
         if root.xbar.any():   # (empty when column generation was skipped)
-            try_incumbent(round_schedule(data, root.xbar, allowed0), allowed0, {})
-            neighbourhood(root.xbar)
-        elif big and lp_x is not None and not _closed(bound, z):
-            neighbourhood(lp_x, band=BAND_WIDTH, share=BAND_SHARE)
-        try_incumbent(round_schedule(data, root.value.x.astype(float) + root.xbar, allowed0), allowed0, {})
-        trace.append((now(), z, bound))
-        details["root"]["repair"] = []
+            self.try_incumbent(round_schedule(data, root.xbar, allowed0), allowed0, {})
+            self.neighbourhood(root.xbar)
+        elif big and lp_x is not None and not _closed(self.bound, self.z):
+            self.neighbourhood(lp_x, band=BAND_WIDTH, share=BAND_SHARE)
+        self.try_incumbent(round_schedule(data, root.value.x.astype(float) + root.xbar, allowed0), allowed0, {})
+        self.trace.append((self.now(), self.z, self.bound))
+        self.details["root"]["repair"] = []
 
-        def repair() -> None:
-            """Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left."""
-            if _closed(bound, z) or big:
-                return
-            left = None if deadline is None else deadline - time.perf_counter()
-            rep = level_repair(data, assign, allowed0,
-                               deadline=None if left is None else time.perf_counter() + REPAIR_SHARE * left)
-            try_incumbent(rep.assign, allowed0, {})
-            details["root"]["repair"].append({"incumbent": z, "repairs": rep.repairs, "tried": rep.tried,
-                                              "undecided": rep.undecided, "ruled_out": rep.ruled_out,
-                                              "seconds": rep.seconds})
-            trace.append((now(), z, bound))
+    def repair(self) -> None:
+        """Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left."""
+        if _closed(self.bound, self.z) or self.big:
+            return
+        left = self.left()
+        rep = level_repair(self.data, self.assign, self.allowed0,
+                           deadline=None if left is None else time.perf_counter() + REPAIR_SHARE * left)
+        self.try_incumbent(rep.assign, self.allowed0, {})
+        self.details["root"]["repair"].append({"incumbent": self.z, "repairs": rep.repairs, "tried": rep.tried,
+                                               "undecided": rep.undecided, "ruled_out": rep.ruled_out,
+                                               "seconds": rep.seconds})
+        self.trace.append((self.now(), self.z, self.bound))
 
-        # Repair, window LNS from the repaired schedule (LNS_SHARE of the time left), repair again.
-        repair()
-        if not _closed(bound, z):
-            left = None if deadline is None else deadline - time.perf_counter()
+    def improve_at_root(self) -> None:
+        """Repair, window LNS from the repaired schedule (LNS_SHARE of the time left), repair again;
+        then fix at the incumbent the pairs no better schedule uses."""
+        self.repair()
+        if not _closed(self.bound, self.z):
+            left = self.left()
             lns_deadline = None if left is None else time.perf_counter() + LNS_SHARE * left
-            cand = window_sweep(data, assign, allowed0, width=lns_width, deadline=lns_deadline)
-            try_incumbent(cand, allowed0, {})
-            details["root"]["after_lns"] = z
-            trace.append((now(), z, bound))
-        repair()
-        allowed_root = fixed_at(z, allowed0, exact=True)
-        details["root"]["fixed_pairs"] = int(allowed0.sum() - allowed_root.sum())
-        details["root"]["incumbent"] = z
-        use_mip = branching in ("both", "mip") and not _closed(bound, z) and not out_of_time()
+            cand = window_sweep(self.data, self.assign, self.allowed0, width=self.lns_width, deadline=lns_deadline)
+            self.try_incumbent(cand, self.allowed0, {})
+            self.details["root"]["after_lns"] = self.z
+            self.trace.append((self.now(), self.z, self.bound))
+        self.repair()
+        self.allowed_root = self.fixed_at(self.z, self.allowed0, exact=True)
+        self.details["root"]["fixed_pairs"] = int(self.allowed0.sum() - self.allowed_root.sum())
+        self.details["root"]["incumbent"] = self.z
+
+    def branch(self) -> None:
+        """The MIP side and the price side: together (the MIP side in a second thread: highspy
+        releases the GIL), or one alone; whichever closes the gap first stops the other."""
+        branching = self.branching
+        use_mip = branching in ("both", "mip") and not _closed(self.bound, self.z) and not self.out_of_time()
         # Column generation at every node is too slow where it is skipped at the root (large instances).
-        use_price = branching == "price" or (branching == "both" and not big)
-        found: list[np.ndarray] = []     # schedules the MIP side found, handed to the main thread
-        stop = threading.Event()         # set when one side has closed the gap (or at the end)
-        mip: dict[str, Any] = {"bound": math.inf, "kind": "", "hit_limit": False, "runs": []}
-
-        def mip_side(zh: float, start: np.ndarray) -> None:
-            """HiGHS on the model reduced by Lagrangian fixing, cut off at ``zh``; each time it finds
-            a schedule at which fixing would drop enough pairs, it is stopped, the fixing redone at
-            the new incumbent and HiGHS restarted from it on the smaller model. Touches no shared
-            state but ``found`` and ``mip`` (it may run in its own thread, next to the pricing);
-            an exception is kept in ``mip["error"]`` and raised again by the caller."""
-            try:
-                _mip_runs(zh, start)
-            except BaseException as exc:
-                mip["error"] = exc
-                stop.set()
-
-        def _mip_runs(zh: float, start: np.ndarray) -> None:
-            mask = allowed_root
-            may_restart = True
-            while not stop.is_set():
-                left = None if deadline is None else deadline - time.perf_counter()
-                if left is not None:
-                    left -= MIP_MARGIN_S + MIP_MARGIN_PER_PAIR_S * float(mask.sum())
-                    if left <= 0:
-                        mip["hit_limit"] = True
-                        break
-                size = int(mask.sum())
-
-                def restart_if(value: float, mask: np.ndarray = mask, size: int = size) -> bool:
-                    return value > zh and int(fixed_at(value, mask).sum()) <= RESTART_SHRINK * size
-
-                z_before = zh
-                outcome, cand, mip_bound = reduced_mip(data, mask, zh, time_limit_s=left, start=start,
-                                                       restart_if=restart_if if may_restart else None,
-                                                       stop=stop.is_set)
-                if cand is not None:   # (feasible in exact bytes and better than zh: reduced_mip checks)
-                    found.append(cand)
-                    zh, start = assignment_value(data, cand), cand
-                mip["runs"].append({"outcome": outcome, "bound": mip_bound, "variables": size, "seconds": now()})
-                if outcome == "optimal":
-                    # Nothing in the mask beats max(z_before, what HiGHS returned), and every
-                    # schedule better than z_before lies in the mask.
-                    mip["bound"] = zh
-                    mip["kind"] = ("Lagrangian reduced-cost fixing, then HiGHS branch-and-cut on the reduced model "
-                                   "(cut off at the incumbent): closed")
-                    stop.set()
-                elif max(z_before, mip_bound) < mip["bound"]:
-                    mip["bound"] = max(z_before, mip_bound)
-                    mip["kind"] = "HiGHS dual bound on the model reduced by Lagrangian fixing"
-                trace.append((now(), max(z, zh), min(bound, mip["bound"])))
-                if outcome != "restart":
-                    mip["hit_limit"] = outcome == "time_limit"
-                    break
-                # (HiGHS's schedule failing the exact check would restart forever: run on instead.)
-                may_restart = zh > z_before
-                mask = fixed_at(zh, mask, exact=True)
-
+        use_price = branching == "price" or (branching == "both" and not self.big)
+        self.found: list[np.ndarray] = []     # schedules the MIP side found, handed to the main thread
+        self.stop = threading.Event()          # set when one side has closed the gap (or at the end)
+        self.mip: dict[str, Any] = {"bound": math.inf, "kind": "", "hit_limit": False, "runs": []}
         worker, switch_interval = None, sys.getswitchinterval()
         if use_mip and use_price:
-            worker = threading.Thread(target=mip_side, args=(z, assign.copy()), name="exact-mip", daemon=True)
+            worker = threading.Thread(target=self.mip_side, args=(self.z, self.assign.copy()), name="exact-mip",
+                                      daemon=True)
             sys.setswitchinterval(min(switch_interval, SWITCH_INTERVAL_S))
             worker.start()
         elif use_mip:
-            mip_side(z, assign)
+            self.mip_side(self.z, self.assign)
         try:
-            # Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask, root result).
-            counter = itertools.count()
-            unresolved = -math.inf
-            heap: list = []
-            if use_price and not _closed(bound, z):
-                heap.append((-bound, next(counter), {}, allowed_root, root))
-
-            def take_found() -> None:
-                while found:
-                    try_incumbent(found.pop(), allowed0, {})
-
-            while use_price and heap and not stop.is_set() and not out_of_time() and (max_nodes is None or nodes < max_nodes):
-                take_found()
-                neg, _, forced, allowed, pre = heapq.heappop(heap)
-                node_bound = -neg
-                if _closed(node_bound, z):
-                    continue
-                nodes += 1
-                if pre is None:
-                    mask = _propagate(data, allowed, forced)
-                    if mask is None:
-                        continue
-                    left = None if deadline is None else deadline - time.perf_counter()
-                    cg = column_generation(data, pool, rows, allowed=mask, forced=forced, incumbent=z, time_limit_s=left,
-                                           start_bound=node_bound, stall_iterations=8)
-                    if cg.infeasible:
-                        continue
-                    node_bound = min(node_bound, cg.bound)
-                    try_incumbent(round_schedule(data, cg.xbar, mask, forced=forced), mask, forced)
-                    if (out_of_time() or stop.is_set()) and not _closed(node_bound, z):
-                        heapq.heappush(heap, (-node_bound, next(counter), forced, allowed, None))
-                        break
-                else:
-                    mask, cg = allowed, pre
-                if _closed(node_bound, z):
-                    continue
-                mask = reduced_cost_fixing(data, cg.value, cg.value.bound, z, mask) if cg.value.bound <= node_bound \
-                    else mask
-                # Branch on the most fractional "arrived by slot t" weighted by the profit drop there
-                # (see _cumulative_split); when that is integral, on the most fractional x[i,t] (ties:
-                # larger profit), then on a pair the knapsacks chose that the master did not.
-                x = cg.xbar
-                split = _cumulative_split(data, x)
-                if split is not None:
-                    by, after = _split_masks(data, mask, *split)
-                    children = [(dict(forced), by), (dict(forced), after)]
-                else:
-                    frac = np.minimum(x, 1.0 - x) * (mask & (x > 1e-6) & (x < 1 - 1e-6))
-                    if frac.max(initial=0.0) > 0:
-                        score = frac * (1.0 + data.profit / (data.profit.max() + 1e-300))
-                        i, t = np.unravel_index(int(np.argmax(score)), score.shape)
-                    else:
-                        diff = cg.value.x & (x < 0.5) & mask
-                        for i_f in forced:
-                            diff[i_f, :] = False
-                        if not diff.any():
-                            diff = (x > 0.5) & mask
-                            for i_f in forced:
-                                diff[i_f, :] = False
-                        if not diff.any():
-                            # Nothing left to branch on: keep the node's bound in the answer's bound.
-                            unresolved = max(unresolved, node_bound)
-                            continue
-                        i, t = np.unravel_index(int(np.argmax(diff * (data.profit + 1.0))), diff.shape)
-                    i, t = int(i), int(t)
-                    mask_zero = mask.copy()
-                    mask_zero[i, t] = False
-                    children = [({**forced, i: t}, mask), (dict(forced), mask_zero)]
-                for child_forced, child_mask in children:
-                    heapq.heappush(heap, (-node_bound, next(counter), child_forced, child_mask, None))
-                trace.append((now(), z, min(mip["bound"], max(z, max((-h[0] for h in heap), default=z)))))
             if use_price:
-                open_bound = max([-h[0] for h in heap if not _closed(-h[0], z)] + [unresolved], default=-math.inf)
-                price_bound = min(max(z, open_bound), max(root.bound, z))
-                if open_bound == -math.inf:
-                    stop.set()   # the tree is closed: the MIP side may stop
-                if price_bound < bound:
-                    bound = price_bound
-                    bound_kind = ("branch-and-price tree closed (every node's Lagrangian bound <= incumbent)"
-                                  if open_bound == -math.inf else
-                                  "branch-and-price: the largest Lagrangian bound of the open nodes")
+                self.price_side()
         finally:   # the MIP thread never outlives the call
             if worker is not None:
-                stop.set()
+                self.stop.set()
                 worker.join()
                 sys.setswitchinterval(switch_interval)
+        mip = self.mip
         if "error" in mip:
             raise mip["error"]
-        take_found()
+        self.take_found()
         if use_mip:
-            hit_limit = mip["hit_limit"]
-            details["reduced_mip"] = ({**mip["runs"][-1], "variables": mip["runs"][0]["variables"], "runs": mip["runs"]}
-                                      if mip["runs"] else {})
-            if max(z, mip["bound"]) < bound:
-                bound, bound_kind = max(z, mip["bound"]), mip["kind"]
-        bound = max(bound, z)
-        trace.append((now(), z, bound))
-    stopped = hit_limit or out_of_time() or (max_nodes is not None and nodes >= max_nodes)
-    gap = 0.0 if bound == z else (bound - z) / abs(bound) if bound else math.inf
-    if gap <= GAP_TOL:
-        status, message = Status.OPTIMAL, ""
-    elif stopped:
-        status = Status.TIME_LIMIT
-        message = f"stopped after {nodes} node(s): best schedule and a valid bound ({bound_kind})"
+            self.hit_limit = mip["hit_limit"]
+            self.details["reduced_mip"] = ({**mip["runs"][-1], "variables": mip["runs"][0]["variables"],
+                                            "runs": mip["runs"]} if mip["runs"] else {})
+            if max(self.z, mip["bound"]) < self.bound:
+                self.bound, self.bound_kind = max(self.z, mip["bound"]), mip["kind"]
+        self.bound = max(self.bound, self.z)
+        self.trace.append((self.now(), self.z, self.bound))
+
+    def take_found(self) -> None:
+        while self.found:
+            self.try_incumbent(self.found.pop(), self.allowed0, {})
+
+    def mip_side(self, zh: float, start: np.ndarray) -> None:
+        """HiGHS on the model reduced by Lagrangian fixing, cut off at ``zh``; each time it finds
+        a schedule at which fixing would drop enough pairs, it is stopped, the fixing redone at
+        the new incumbent and HiGHS restarted from it on the smaller model. Touches no shared
+        state but ``found`` and ``mip`` (it may run in its own thread, next to the pricing);
+        an exception is kept in ``mip["error"]`` and raised again by the caller."""
+        try:
+            self._mip_runs(zh, start)
+        except BaseException as exc:
+            self.mip["error"] = exc
+            self.stop.set()
+
+    def _mip_runs(self, zh: float, start: np.ndarray) -> None:
+        data, mip, stop = self.data, self.mip, self.stop
+        mask = self.allowed_root
+        may_restart = True
+        while not stop.is_set():
+            left = self.left()
+            if left is not None:
+                left -= MIP_MARGIN_S + MIP_MARGIN_PER_PAIR_S * float(mask.sum())
+                if left <= 0:
+                    mip["hit_limit"] = True
+                    break
+            size = int(mask.sum())
+
+            def restart_if(value: float, mask: np.ndarray = mask, size: int = size) -> bool:
+                return value > zh and int(self.fixed_at(value, mask).sum()) <= RESTART_SHRINK * size
+
+            z_before = zh
+            outcome, cand, mip_bound = reduced_mip(data, mask, zh, time_limit_s=left, start=start,
+                                                   restart_if=restart_if if may_restart else None,
+                                                   stop=stop.is_set)
+            if cand is not None:   # (feasible in exact bytes and better than zh: reduced_mip checks)
+                self.found.append(cand)
+                zh, start = assignment_value(data, cand), cand
+            mip["runs"].append({"outcome": outcome, "bound": mip_bound, "variables": size, "seconds": self.now()})
+            if outcome == "optimal":
+                # Nothing in the mask beats max(z_before, what HiGHS returned), and every
+                # schedule better than z_before lies in the mask.
+                mip["bound"] = zh
+                mip["kind"] = ("Lagrangian reduced-cost fixing, then HiGHS branch-and-cut on the reduced model "
+                               "(cut off at the incumbent): closed")
+                stop.set()
+            elif max(z_before, mip_bound) < mip["bound"]:
+                mip["bound"] = max(z_before, mip_bound)
+                mip["kind"] = "HiGHS dual bound on the model reduced by Lagrangian fixing"
+            self.trace.append((self.now(), max(self.z, zh), min(self.bound, mip["bound"])))
+            if outcome != "restart":
+                mip["hit_limit"] = outcome == "time_limit"
+                break
+            # (HiGHS's schedule failing the exact check would restart forever: run on instead.)
+            may_restart = zh > z_before
+            mask = self.fixed_at(zh, mask, exact=True)
+
+    def price_side(self) -> None:
+        """Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask, root result)."""
+        data, stop, max_nodes = self.data, self.stop, self.max_nodes
+        counter = itertools.count()
+        unresolved = -math.inf
+        heap: list = []
+        if not _closed(self.bound, self.z):
+            heap.append((-self.bound, next(counter), {}, self.allowed_root, self.root_cg))
+        while heap and not stop.is_set() and not self.out_of_time() and (max_nodes is None or self.nodes < max_nodes):
+            self.take_found()
+            neg, _, forced, allowed, pre = heapq.heappop(heap)
+            node_bound = -neg
+            if _closed(node_bound, self.z):
+                continue
+            self.nodes += 1
+            if pre is None:
+                mask = _propagate(data, allowed, forced)
+                if mask is None:
+                    continue
+                cg = column_generation(data, self.pool, self.rows, allowed=mask, forced=forced, incumbent=self.z,
+                                       time_limit_s=self.left(), start_bound=node_bound, stall_iterations=8)
+                if cg.infeasible:
+                    continue
+                node_bound = min(node_bound, cg.bound)
+                self.try_incumbent(round_schedule(data, cg.xbar, mask, forced=forced), mask, forced)
+                if (self.out_of_time() or stop.is_set()) and not _closed(node_bound, self.z):
+                    heapq.heappush(heap, (-node_bound, next(counter), forced, allowed, None))
+                    break
+            else:
+                mask, cg = allowed, pre
+            if _closed(node_bound, self.z):
+                continue
+            mask = reduced_cost_fixing(data, cg.value, cg.value.bound, self.z, mask) \
+                if cg.value.bound <= node_bound else mask
+            children = _children(data, cg, mask, forced)
+            if children is None:
+                # Nothing left to branch on: keep the node's bound in the answer's bound.
+                unresolved = max(unresolved, node_bound)
+                continue
+            for child_forced, child_mask in children:
+                heapq.heappush(heap, (-node_bound, next(counter), child_forced, child_mask, None))
+            self.trace.append((self.now(), self.z,
+                               min(self.mip["bound"], max(self.z, max((-h[0] for h in heap), default=self.z)))))
+        open_bound = max([-h[0] for h in heap if not _closed(-h[0], self.z)] + [unresolved], default=-math.inf)
+        price_bound = min(max(self.z, open_bound), max(self.root_cg.bound, self.z))
+        if open_bound == -math.inf:
+            stop.set()   # the tree is closed: the MIP side may stop
+        if price_bound < self.bound:
+            self.bound = price_bound
+            self.bound_kind = ("branch-and-price tree closed (every node's Lagrangian bound <= incumbent)"
+                               if open_bound == -math.inf else
+                               "branch-and-price: the largest Lagrangian bound of the open nodes")
+
+    def finish(self) -> Solution:
+        """Status and gap, decided once (through :func:`relative_gap`), and the checked solution."""
+        stopped = self.hit_limit or self.out_of_time() or (self.max_nodes is not None and self.nodes >= self.max_nodes)
+        gap = relative_gap(self.z, self.bound)
+        if gap is not None and gap <= GAP_TOL:
+            status, message = Status.OPTIMAL, ""
+        elif stopped:
+            status = Status.TIME_LIMIT
+            message = f"stopped after {self.nodes} node(s): best schedule and a valid bound ({self.bound_kind})"
+        else:
+            status, message = Status.FEASIBLE, f"search ended without proof ({self.bound_kind})"
+        self.details.update({"bound_kind": self.bound_kind, "nodes": self.nodes, "columns": len(self.pool),
+                             "precedence_rows": len(self.rows), "trace": self.trace})
+        return finish_solution(self.instance, self.data.arrivals(self.assign), problem=self.instance.problem,
+                               method="exact", status=status, bound=self.bound,
+                               runtime_s=time.perf_counter() - self.started, message=message, details=self.details)
+
+
+def _children(data: GapData, cg: Any, mask: np.ndarray, forced: Mapping[int, int]
+              ) -> list[tuple[dict[int, int], np.ndarray]] | None:
+    """The two children of a node, or None when there is nothing left to branch on.
+
+    Branch on the most fractional "arrived by slot t" weighted by the profit drop there (see
+    :func:`_cumulative_split`); when that is integral, on the most fractional ``x[i,t]`` (ties:
+    larger profit), then on a pair the knapsacks chose that the master did not.
+    """
+    x = cg.xbar
+    split = _cumulative_split(data, x)
+    if split is not None:
+        by, after = _split_masks(data, mask, *split)
+        return [(dict(forced), by), (dict(forced), after)]
+    frac = np.minimum(x, 1.0 - x) * (mask & (x > FRACTIONAL_TOL) & (x < 1 - FRACTIONAL_TOL))
+    if frac.max(initial=0.0) > 0:
+        score = frac * (1.0 + data.profit / (data.profit.max() + 1e-300))
+        i, t = np.unravel_index(int(np.argmax(score)), score.shape)
     else:
-        status, message = Status.FEASIBLE, f"search ended without proof ({bound_kind})"
-    details.update({"bound_kind": bound_kind, "nodes": nodes, "columns": len(pool), "precedence_rows": len(rows),
-                    "trace": trace})
-    return finish_solution(instance, data.arrivals(assign), problem=instance.problem, method="exact", status=status,
-                           bound=bound, runtime_s=time.perf_counter() - started, message=message, details=details)
+        diff = cg.value.x & (x < 0.5) & mask
+        for i_f in forced:
+            diff[i_f, :] = False
+        if not diff.any():
+            diff = (x > 0.5) & mask
+            for i_f in forced:
+                diff[i_f, :] = False
+        if not diff.any():
+            return None
+        i, t = np.unravel_index(int(np.argmax(diff * (data.profit + 1.0))), diff.shape)
+    i, t = int(i), int(t)
+    mask_zero = mask.copy()
+    mask_zero[i, t] = False
+    return [({**forced, i: t}, mask), (dict(forced), mask_zero)]
