@@ -33,6 +33,8 @@ from l3gs_opt.bench.suites import suite_specs  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 SETS = ROOT.parent / "shared" / "data" / "reference" / "knapsack"
 OUT = ROOT / "benchmarks" / "results"
+#: Notes written by hand below this line survive ``--report``.
+NOTES_MARK = "<!-- notes below are kept by --report -->"
 VARIANTS = {"rule13_on": {"presolve_rule_off": 0}, "rule13_off": {}}
 
 
@@ -42,7 +44,7 @@ def tasks():
             yield f"knapsack/{path.parent.name}/{path.stem}", path
     # exact.md's instances: the l3gs suite's T=60, J=20 specs.
     for spec in [s for s in suite_specs("l3gs", sizes=[20], seeds=5) if not s.single_slot]:
-        yield f"problem1/{spec.name}", spec
+        yield f"problem1/{spec.instance_id}", spec
 
 
 def build(task):
@@ -115,7 +117,10 @@ def report() -> Path:
     lines += ["", "'Best' is the larger of the published optimum and every objective found. Instances with a wrong "
               "'optimal' (either variant):", ""] + [f"- `{n}`" for n in wrong_names]
     out = OUT / "highs_presolve.md"
-    out.write_text("\n".join(lines) + "\n")
+    notes = ""
+    if out.exists() and NOTES_MARK in out.read_text():
+        notes = out.read_text().split(NOTES_MARK, 1)[1]
+    out.write_text("\n".join(lines) + "\n\n" + NOTES_MARK + notes)
     return out
 
 
