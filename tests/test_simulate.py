@@ -465,7 +465,7 @@ def test_distill_shows_compact_sh_until_upgraded(world):
     # Independent: the 10 rows upgraded are those with the largest Eq. 1 utility x upgrade share.
     rows = cat.rows[1]
     u = splat_utility(sim.scene.subset(rows), sim.prediction(0)["cameras"][0]) * sim.distill_arrays()[1][rows]
-    shown, _, full = sim._shown(cat, client.got, client.complete, client.order, False)
+    shown, _, full = sim.shown_rows(cat, client.got, client.complete, client.order, False)
     upgraded = np.isin(rows, shown[full])
     assert upgraded.sum() == 10 and u[upgraded].min() >= u[~upgraded].max() and u[upgraded].min() > 0
     # Every compact chunk and no upgrade: the bundle's compact scene (its own API), the same image.

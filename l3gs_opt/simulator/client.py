@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from l3gs_opt.simulator.link import Link, max_min_shares, split_bytes
-from l3gs_opt.simulator.config import TIMING_KEYS, SimulationError
+from l3gs_opt.simulator.config import TIMING_KEYS, SimulationError, SlotInputs
 from l3gs_opt.simulator.records import RecordWriter, SimulationResult
 from l3gs_opt.simulator.schedulers import ItemSlotView, SlotView
 
@@ -69,12 +69,12 @@ class Client:
         self.first_slot = len(self.records)
 
     # -- one slot -----------------------------------------------------------------------------------
-    def begin_slot(self, t: int) -> None:
-        sim = self.sim
-        self.t = t
-        self.pred = sim.prediction(t)
-        self.unit_u, lookup_s = sim._unit_utility(self.cat, self.pred)
-        self.predicted = sim._predicted_bytes(t, self.history, self.clients)
+    def begin_slot(self, inputs: SlotInputs) -> None:
+        """Start slot ``inputs.slot`` with what the simulation computed for it."""
+        self.t = inputs.slot
+        self.inputs = inputs
+        self.unit_u, lookup_s = inputs.unit_utility, inputs.lookup_s
+        self.predicted = inputs.predicted_bytes
         self.part = 0
         self.acc = {"share": 0, "capacity": self.link.bank, "delivered": 0, "requests": [], "parts": [],
                     "part_bytes": [], "part_predicted": [], "completed": [], "schedule_s": 0.0, "order_s": 0.0,
@@ -105,7 +105,7 @@ class Client:
         t0 = time.perf_counter()
         wanted = self.spec.scheduler.requests(view)
         self.acc["schedule_s"] += time.perf_counter() - t0
-        return self.sim._check_requests(wanted, view, self.spec.name)
+        return self.sim.check_requests(wanted, view, self.spec.name)
 
     def demand(self, ids: Sequence[int]) -> int:
         return self.link.demand([(k, int(self.cat.bytes[k])) for k in ids])
@@ -116,7 +116,7 @@ class Client:
         delivery = self.link.step([(k, int(cat.bytes[k])) for k in ids], bandwidth=share)
         t1 = time.perf_counter()
         for k in delivery.started:
-            self.order[k] = self.sim._splat_order(cat, k, self.pred) if self.spec.order == "utility" \
+            self.order[k] = self.inputs.splat_order(k) if self.spec.order == "utility" \
                 else cat.rows[k]
         acc["order_s"] += time.perf_counter() - t1
         for k, b in delivery.delivered.items():
@@ -164,7 +164,7 @@ class Client:
         record = self._slot_record()
         self.idle_total += record["bytes_idle"]
         t2 = time.perf_counter()
-        rows, _, full = sim._shown(self.cat, self.got, self.complete, self.order, self.spec.preload)
+        rows, _, full = sim.shown_rows(self.cat, self.got, self.complete, self.order, self.spec.preload)
         image, reused = sim.client_image(rows, full, sim.true_camera(t))
         render_s = time.perf_counter() - t2
         ref, reference_s = sim.reference_image(t)
@@ -172,8 +172,8 @@ class Client:
         s, p = ssim(image, ref), psnr(image, ref)
         metrics_s = time.perf_counter() - t3
         record.update(ssim=s, psnr=_finite_or_none(p), splats_shown=int(rows.size), render_reused=reused,
-                      timings_s={"prediction": self.pred["prediction_s"],
-                                 "utility": self.pred["utility_s"] + acc["lookup_s"] + acc["order_s"],
+                      timings_s={"prediction": self.inputs.prediction["prediction_s"],
+                                 "utility": self.inputs.prediction["utility_s"] + acc["lookup_s"] + acc["order_s"],
                                  "scheduling": acc["schedule_s"], "rendering": render_s, "reference": reference_s,
                                  "metrics": metrics_s})
         if full is not None:
@@ -187,7 +187,7 @@ class Client:
         """Re-run a recorded slot's deliveries (no scheduling, no rendering) and check them."""
         t = len(self.records)
         cat = self.cat
-        self.begin_slot(t)
+        self.begin_slot(self.sim.slot_inputs(t, cat, self.history, self.clients))
         parts = record.get("substep_requests", [record["requests"]])
         shares = record.get("substep_bytes", [record.get("bytes_share", record["bytes_trace"])])
         if len(parts) != self.cfg.substeps or len(shares) != len(parts):
@@ -212,7 +212,7 @@ class Client:
         sim, cat, cfg, spec = self.sim, self.cat, self.cfg, self.spec
         K = cat.units
         J, L = cat.shape
-        rows, shown_units, full = sim._shown(cat, self.got, self.complete, self.order, spec.preload)
+        rows, shown_units, full = sim.shown_rows(cat, self.got, self.complete, self.order, spec.preload)
         got = self.got
         delivered = int(got.sum())
         useful = int(sum(int(min(got[k], (got[k] // cat.bytes_per_splat[k]) * cat.bytes_per_splat[k]))
@@ -256,7 +256,7 @@ def drive(clients: Sequence[Client], bandwidth: Sequence[int], *, start: int = 0
     for t in tqdm(range(start, len(bandwidth)), desc=f"simulate {name}", unit="slot", disable=not progress,
                   initial=start, total=len(bandwidth)):
         for c in clients:
-            c.begin_slot(t)
+            c.begin_slot(c.sim.slot_inputs(t, c.cat, c.history, c.clients))
         for total in split_bytes(int(bandwidth[t]), parts):
             ids = [c.plan() for c in clients]
             shares = max_min_shares(total, [c.demand(i) for c, i in zip(clients, ids)])

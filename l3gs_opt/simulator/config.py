@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.simulator.link import BUDGETS
 
-__all__ = ["SimulationError", "SimConfig", "TIMING_KEYS", "SH_UPGRADE_UTILITIES"]
+__all__ = ["SimulationError", "SimConfig", "SlotInputs", "TIMING_KEYS", "SH_UPGRADE_UTILITIES"]
 
 #: Per-slot timings kept in every slot record (seconds).
 TIMING_KEYS = ("prediction", "utility", "scheduling", "rendering", "reference", "metrics")
@@ -138,3 +139,23 @@ class SimConfig:
         elif isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
                 or not (0.0 <= float(f) <= 1.0):
             raise SimulationError("sh_upgrade_utility", f"{f!r}: must be 'residual', 'bands' or a number in [0, 1]")
+
+
+@dataclass(frozen=True)
+class SlotInputs:
+    """What :class:`~l3gs_opt.simulator.simulation.Simulation` hands a client at the start of a slot.
+
+    ``prediction``: the slot's predicted cameras (and, in exact mode, the predicted per-splat
+    utility); ``unit_utility``: predicted utility per unit (shape of the client's catalogue grid);
+    ``lookup_s``: seconds the utility look-up took; ``predicted_bytes``: the bandwidth predictor's
+    bytes for the slot; ``splat_order(k)``: the rows of unit ``k`` in the order they are sent
+    (descending predicted utility).
+    """
+
+    slot: int
+    prediction: dict
+    unit_utility: np.ndarray
+    lookup_s: float
+    predicted_bytes: int
+    splat_order: Callable[[int], np.ndarray]
+

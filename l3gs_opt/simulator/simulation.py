@@ -110,7 +110,7 @@ import numpy as np
 
 from l3gs_opt.simulator.link import Link
 from l3gs_opt.simulator.catalog import Catalog, _base_scene, build_catalog, compact_sh, upgrade_fraction
-from l3gs_opt.simulator.config import TIMING_KEYS, SimConfig, SimulationError
+from l3gs_opt.simulator.config import TIMING_KEYS, SimConfig, SimulationError, SlotInputs
 from l3gs_opt.simulator.methods import ITEM_SOLVERS, SIM_METHODS, SLOT_SOLVERS, MethodSpec, method_spec
 from l3gs_opt.simulator.records import SimulationResult, run_id
 from l3gs_opt.simulator.schedulers import (FixedOrderScheduler, HorizonScheduler, ItemSlotView, PreloadScheduler, Scheduler,
@@ -426,6 +426,15 @@ class Simulation:
         out = np.stack([np.clip(cells - upgrade, 0.0, None), upgrade], axis=-1)
         return out, time.perf_counter() - t0
 
+    def slot_inputs(self, t: int, cat: Catalog, history: Sequence[int], clients: int = 1) -> SlotInputs:
+        """Slot ``t``'s inputs for a client on ``cat`` whose earlier slots delivered ``history``
+        (bytes per slot), one of ``clients`` on the link: what it is handed, rather than asking."""
+        pred = self.prediction(t)
+        unit_utility, lookup_s = self._unit_utility(cat, pred)
+        return SlotInputs(slot=t, prediction=pred, unit_utility=unit_utility, lookup_s=lookup_s,
+                          predicted_bytes=self._predicted_bytes(t, history, clients),
+                          splat_order=lambda k: self._splat_order(cat, k, pred))
+
     def _splat_order(self, cat: Catalog, k: int, pred: dict) -> np.ndarray:
         """Rows of unit ``k`` in descending predicted utility of its form (stable: ties keep the
         bundle's order)."""
@@ -505,7 +514,7 @@ class Simulation:
         drive([client], self.link_bytes, start=client.first_slot, progress=progress)
         return client.finish()
 
-    def _check_requests(self, wanted, view: SlotView, method: str) -> list[int]:
+    def check_requests(self, wanted, view: SlotView, method: str) -> list[int]:
         """Unit ids of a scheduler's requests, each checked against ``view``."""
         grid = view.cost.shape
         what = "(object, level) pairs" if len(grid) == 2 else "(object, level, form) triples"
@@ -532,7 +541,7 @@ class Simulation:
             ids.append(int(np.ravel_multi_index(u, grid)))
         return ids
 
-    def _shown(self, cat: Catalog, got: np.ndarray, complete: np.ndarray, order: list,
+    def shown_rows(self, cat: Catalog, got: np.ndarray, complete: np.ndarray, order: list,
                preload: bool) -> tuple[np.ndarray, set, np.ndarray | None]:
         """Rows the client shows (sorted), the units they come from, and (``distill`` view) per
         row whether its SH upgrade arrived (else None: every row shows its full SH)."""

@@ -104,6 +104,19 @@ def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: f
                                details={**result.details, "objective_prescale_log2": exponent})
 
 
+#: A status table maps a backend's own code to a :class:`Status`, or to a pair
+#: ``(status when the time limit was used up, status otherwise)`` for a stop without proof.
+StatusTable = Mapping[Any, "Status | tuple[Status, Status]"]
+
+
+def mapped_status(table: StatusTable, code: Any, *, limit_hit: bool) -> Status:
+    """The :class:`Status` of a backend's ``code`` through its one ``table`` (unknown codes: ``ERROR``)."""
+    entry = table.get(code, Status.ERROR)
+    if isinstance(entry, tuple):
+        return entry[0] if limit_hit else entry[1]
+    return entry
+
+
 def timed_out(start: float, time_limit_s: float | None) -> bool:
     """Whether a run that stopped without proof used up its time limit (with 5% slack)."""
     return time_limit_s is not None and time.perf_counter() - start >= 0.95 * time_limit_s

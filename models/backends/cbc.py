@@ -20,12 +20,28 @@ import pulp
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
-from . import BackendResult
+from . import BackendResult, mapped_status
 
 _KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
 _RESULT = re.compile(r"^Result - (.*)$", re.M)
 _UPPER = re.compile(r"^Upper bound:\s+(\S+)", re.M)
 _VERSION = re.compile(r"^Version:\s+(\S+)", re.M)
+
+
+#: CBC's result line, classified by :func:`_result_kind`.
+_STATUS = {"optimal": Status.OPTIMAL, "stopped on time": Status.TIME_LIMIT, "infeasible": Status.INFEASIBLE}
+
+
+def _result_kind(result: str, relax: bool, pulp_status: str) -> str:
+    if result.startswith("Optimal"):
+        return "optimal"
+    if result.startswith("Stopped on time"):
+        return "stopped on time"
+    if "infeasible" in result.lower():
+        return "infeasible"
+    if relax and pulp_status == "Optimal":   # CBC's LP path prints no "Result -" line
+        return "optimal"
+    return result
 
 
 def version(log: str = "") -> str:
@@ -80,20 +96,13 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     found = _RESULT.search(log)
     result = found.group(1).strip() if found else ""
     objective = float(values @ model.objective) if values is not None else None
+    status = mapped_status(_STATUS, _result_kind(result, relax, pulp.LpStatus[problem.status]), limit_hit=True)
     bound = None
-    if result.startswith("Optimal"):
-        status, bound = Status.OPTIMAL, objective
-    elif result.startswith("Stopped on time"):
-        status = Status.TIME_LIMIT
+    if status is Status.OPTIMAL:
+        bound = objective
+    elif status is Status.TIME_LIMIT:
         upper = _UPPER.search(log)
         if upper:
             bound = float(upper.group(1))
-    elif "infeasible" in result.lower():
-        status = Status.INFEASIBLE
-    elif relax and pulp.LpStatus[problem.status] == "Optimal":
-        # CBC's LP path prints no "Result -" line.
-        status, bound = Status.OPTIMAL, objective
-    else:
-        status = Status.ERROR
     return BackendResult(status=status, values=values, bound=bound, version=version(log),
                          message=f"CBC: {result or 'no result line'} (PuLP said {pulp.LpStatus[problem.status]})")

@@ -21,10 +21,12 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
-from . import BackendResult
+from . import BackendResult, mapped_status
 
 _TARGET = 2.0**53
 _KNOWN = {"num_workers", "random_seed", "log_search_progress"}
+_STATUS = {cp_model.OPTIMAL: Status.OPTIMAL, cp_model.INFEASIBLE: Status.INFEASIBLE,
+           cp_model.FEASIBLE: (Status.TIME_LIMIT, Status.FEASIBLE), cp_model.UNKNOWN: (Status.TIME_LIMIT, Status.FEASIBLE)}
 
 
 def version() -> str:
@@ -79,15 +81,8 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         setattr(solver.parameters, key, value)
     code = solver.solve(m)
     has_solution = code in (cp_model.OPTIMAL, cp_model.FEASIBLE)
-    if code == cp_model.OPTIMAL:
-        status = Status.OPTIMAL
-    elif code == cp_model.INFEASIBLE:
-        status = Status.INFEASIBLE
-    elif code in (cp_model.FEASIBLE, cp_model.UNKNOWN):
-        # CP-SAT stops short of a proof only at a limit; its clock includes presolve, ours the build.
-        status = Status.TIME_LIMIT if time_limit_s is not None else Status.FEASIBLE
-    else:
-        status = Status.ERROR
+    # CP-SAT stops short of a proof only at a limit; its clock includes presolve, ours the build.
+    status = mapped_status(_STATUS, code, limit_hit=time_limit_s is not None)
     values = np.array([solver.value(x) for x in xs], dtype=np.float64) if has_solution else None
     bound = None
     if has_solution:

@@ -12,9 +12,13 @@ from ortools.linear_solver import pywraplp
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
-from . import BackendResult, timed_out
+from . import BackendResult, mapped_status, timed_out
 
 _KNOWN = {"threads"}
+#: pywraplp's result codes (NOT_SOLVED before the time limit: an error, not a stop).
+_STATUS = {pywraplp.Solver.OPTIMAL: Status.OPTIMAL, pywraplp.Solver.INFEASIBLE: Status.INFEASIBLE,
+           pywraplp.Solver.FEASIBLE: (Status.TIME_LIMIT, Status.FEASIBLE),
+           pywraplp.Solver.NOT_SOLVED: (Status.TIME_LIMIT, Status.ERROR)}
 
 
 def version() -> str:
@@ -58,16 +62,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         params.SetDoubleParam(params.RELATIVE_MIP_GAP, 0.0)
     code = solver.Solve(params)
     has_solution = code in (pywraplp.Solver.OPTIMAL, pywraplp.Solver.FEASIBLE)
-    if code == pywraplp.Solver.OPTIMAL:
-        status = Status.OPTIMAL
-    elif code == pywraplp.Solver.FEASIBLE or code == pywraplp.Solver.NOT_SOLVED:
-        status = Status.TIME_LIMIT if timed_out(start, time_limit_s) else Status.FEASIBLE
-        if code == pywraplp.Solver.NOT_SOLVED and not timed_out(start, time_limit_s):
-            status = Status.ERROR
-    elif code == pywraplp.Solver.INFEASIBLE:
-        status = Status.INFEASIBLE
-    else:
-        status = Status.ERROR
+    status = mapped_status(_STATUS, code, limit_hit=timed_out(start, time_limit_s))
     values = np.array([v.solution_value() for v in xs]) if has_solution else None
     bound = None
     if relax:

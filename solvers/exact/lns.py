@@ -94,7 +94,7 @@ def improve_window(data: GapData, assign: np.ndarray, allowed: np.ndarray, start
             # u out keeps its later slot, lo out leaves: forbid (1 - sum x_u <= sum x_lo).
             rows.append((1.0, np.inf, [v for _, v in ui] + [v for _, v in li], [1.0] * (len(ui) + len(li))))
     nv = len(costs)
-    h = new_highs(time_limit_s=max(time_limit_s, 0.01), mip=True)
+    h = new_highs(time_limit_s=max(time_limit_s, 0.01), mip=True, proof=False)
     inf = highspy.kHighsInf
     h.addCols(nv, -np.asarray(costs), np.zeros(nv), np.ones(nv), 0, np.zeros(nv, np.int32),
               np.zeros(0, np.int32), np.zeros(0))
@@ -239,7 +239,7 @@ def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.nda
 def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit_s: float | None,
                 start: np.ndarray | None = None, sparse: bool = True, highs_options: dict | None = None,
                 restart_if: Callable[[float], bool] | None = None,
-                stop: Callable[[], bool] | None = None) -> tuple[str, np.ndarray | None, float]:
+                stop: Callable[[], bool] | None = None, proof: bool = True) -> tuple[str, np.ndarray | None, float]:
     """Problem A restricted to the pairs in ``mask`` (after reduced-cost fixing), solved by HiGHS
     with the objective cut off at ``incumbent``: only strictly better schedules are searched.
 
@@ -252,7 +252,8 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     bound so far, as for ``"time_limit"``). ``sparse`` picks the layer-order rows (see
     :func:`_add_problem_a`); ``highs_options`` are passed to HiGHS as they are. ``stop()``
     returning true (polled in HiGHS's loops, e.g. set by another thread) ends the run as
-    ``"time_limit"``.
+    ``"time_limit"``. ``proof=False`` (a heuristic call, whose schedule is checked and valued
+    anyway) lets HiGHS use presolve rule 13, which :func:`new_highs` otherwise switches off.
     """
     import highspy
 
@@ -263,9 +264,9 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
         return "optimal", None, incumbent
     var = -np.ones((n, T), dtype=np.int64)
     var[ii, tt] = np.arange(nv)
-    # Its proofs count: new_highs(mip=True) sets zero gaps and switches off the presolve rule that
-    # returned wrong optima (models/backends/highs.py).
-    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01), mip=True)
+    # With ``proof`` its "optimal" closes exact's search: HiGHS's presolve rule that returned wrong
+    # optima is switched off (models/backends/highs.py); a heuristic call keeps it (faster).
+    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01), mip=True, proof=proof)
     for key, value in (highs_options or {}).items():
         h.setOptionValue(key, value)
     restart = [False]
@@ -347,5 +348,5 @@ def lp_neighbourhood(data: GapData, x: np.ndarray, allowed: np.ndarray, incumben
     if start is not None:   # keep the start inside the neighbourhood, so HiGHS begins from it
         on = np.nonzero(start >= 0)[0]
         mask[on, start[on]] = True
-    _, cand, _ = reduced_mip(data, mask, incumbent, time_limit_s=time_limit_s, start=start)
+    _, cand, _ = reduced_mip(data, mask, incumbent, time_limit_s=time_limit_s, start=start, proof=False)
     return cand
