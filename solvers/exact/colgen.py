@@ -257,6 +257,9 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
     """
     started = time.perf_counter()
     clock0 = started if clock0 is None else clock0
+    # The pricing knapsacks stop here too (their upper bound keeps the value a valid bound): on a
+    # hard 600-item slot an unbounded one took 60 s under a 10 s limit.
+    deadline = None if time_limit_s is None else started + time_limit_s
     big_m = 10.0 * (float(data.profit.max(axis=1).sum()) + 1.0)
     master = Master(data, pool, rows, allowed=allowed, forced=forced, big_m=big_m)
     best, best_mult, best_val = start_bound, None, None
@@ -287,7 +290,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
                                          smoothing * best_mult.pi + (1 - smoothing) * mult.pi))
         added = []
         for point in points:
-            lv = lagrangian_value(data, point, allowed=allowed, forced=forced)
+            lv = lagrangian_value(data, point, allowed=allowed, forced=forced, deadline=deadline)
             if lv.bound == -math.inf:
                 return CgResult(-math.inf, point, lv, value, xbar, True, it, infeasible=True)
             if lv.bound < best or best_val is None:
@@ -320,7 +323,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
     if best_val is None:   # stopped before pricing once: price at the last duals
         value, mult, lam = master.solve()
         xbar = master.xbar(lam)
-        best_val = lagrangian_value(data, mult, allowed=allowed, forced=forced)
+        best_val = lagrangian_value(data, mult, allowed=allowed, forced=forced, deadline=deadline)
         best_mult = mult
         best = min(best, best_val.bound)
     return CgResult(best, best_mult, best_val, value, xbar, converged, it)

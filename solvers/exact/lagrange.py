@@ -257,8 +257,10 @@ def knapsack(cost: np.ndarray, value: np.ndarray, capacity: int, *,
 
 
 def lagrangian_value(data: GapData, mult: Multipliers, *, allowed: np.ndarray | None = None,
-                     forced: dict[int, int] | None = None) -> LagrangeValue:
-    """``L(mu, pi)`` with per-slot knapsacks solved exactly.
+                     forced: dict[int, int] | None = None, deadline: float | None = None) -> LagrangeValue:
+    """``L(mu, pi)`` with per-slot knapsacks solved exactly, or until ``deadline``
+    (``time.perf_counter()`` seconds): a knapsack stopped there contributes its branch-and-bound
+    upper bound, so the value stays a valid bound (``exact`` false).
 
     ``allowed`` narrows the arrivals (a branch-and-bound node); ``forced`` maps item -> slot
     for items fixed to arrive there (their reduced profit is earned and their bytes reserved).
@@ -284,7 +286,8 @@ def lagrangian_value(data: GapData, mult: Multipliers, *, allowed: np.ndarray | 
         col = red[:, t].copy()
         base = math.fsum(col[fixed].tolist()) if fixed else 0.0
         col[fixed] = -np.inf
-        chosen, value, optimal = knapsack(data.cost, col, cap)
+        left = None if deadline is None else max(deadline - time.perf_counter(), 0.01)
+        chosen, value, optimal = knapsack(data.cost, col, cap, time_limit_s=left)
         exact &= optimal
         x[chosen, t] = True
         x[fixed, t] = True

@@ -529,7 +529,7 @@ class _Search:
         self.details["lp"] = {"value": lp_value, "seconds": self.now()}
         # Every Lagrangian value met is a valid fixing certificate: keep the LP duals' one too.
         if lp_mult is not None:
-            lv0 = lagrange.lagrangian_value(data, lp_mult)
+            lv0 = lagrange.lagrangian_value(data, lp_mult, deadline=self.deadline)
             start_point = (lp_mult, lv0)
             self.certificates.append(lv0)
             self.details["lp"]["lagrangian_at_lp_duals"] = lv0.bound
