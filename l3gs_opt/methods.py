@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -12,65 +13,31 @@ from l3gs_opt.problem.arguments import check_slot, check_time_limit
 from l3gs_opt.problem.instance import Instance, scale_exponent
 from l3gs_opt.problem.items import ItemInstance
 from l3gs_opt.problem.solution import Solution, finish_solution
+from l3gs_opt.solvers.registry import MODEL_OPTIONS, TABLE, MethodEntry, entry, names, resolve
 
 __all__ = ["METHODS", "method_names", "resolve_method", "solve", "check_time_limit", "check_slot"]
 
 
-def _ilp(instance: Instance, **kw: Any) -> Solution:
-    from l3gs_opt.models import solve_ilp
-
-    return solve_ilp(instance, **kw)
-
-
-def _lp(instance: Instance, **kw: Any) -> Solution:
-    from l3gs_opt.models import solve_ilp
-
-    return solve_ilp(instance, relax=True, **kw)
+#: Every method family (the name before any ``:``) -> its :class:`~l3gs_opt.solvers.registry.MethodEntry`:
+#: the one method table, for both instance forms (it lives in :mod:`l3gs_opt.solvers.registry`).
+METHODS: Mapping[str, MethodEntry] = MappingProxyType(TABLE)
 
 
-def _exact(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-           options: Any = None, **_model_options: Any) -> Solution:
-    # Here rather than in solvers/registry.py: exact starts from the registry's heuristics, so the
-    # registry naming it too would be an import cycle.
-    import warnings
-
-    from l3gs_opt.solvers.exact.search import solve_exact
-
-    known = ("branching", "lns_width", "heuristics", "max_nodes")
-    opts = dict(options or {})
-    for key in [k for k in opts if k not in known]:
-        warnings.warn(f"method 'exact': option {key!r} is unknown (known: {', '.join(known)}); ignored",
-                      stacklevel=3)
-        opts.pop(key)
-    return solve_exact(instance, slot=slot, time_limit_s=time_limit_s, **opts)
+def method_names(*, items: bool = False) -> list[str]:
+    """Every method name ``solve`` accepts for the ``Instance`` form (or the item form), parametrised
+    ones as ``name:PARAM``."""
+    return names(items=items)
 
 
-#: Methods built on the exact models and the decomposition; every other name is resolved by
-#: :mod:`l3gs_opt.solvers.registry`. :func:`resolve_method` looks in both: the one method table.
-METHODS: dict[str, Callable[..., Solution]] = {"ilp": _ilp, "lp": _lp, "exact": _exact}
-
-
-def method_names() -> list[str]:
-    """Every method name ``solve`` accepts (parametrised ones as ``name:PARAM``)."""
-    from l3gs_opt.solvers.registry import names
-
-    return [*METHODS, *names()]
-
-
-def resolve_method(name: str) -> Callable[..., Solution]:
-    """The function behind a method name of the ``Instance`` form (the one table every caller
-    asks: ``solve``, the simulator's and the bench's name checks).
+def resolve_method(name: str, *, items: bool = False) -> Callable[..., Solution]:
+    """The function behind a method name (of the ``Instance`` form, or the item form).
 
     Raises
     ------
     SolveError
-        Unknown or malformed name.
+        Unknown or malformed name, or a method that does not take that instance form.
     """
-    if name in METHODS:
-        return METHODS[name]
-    from l3gs_opt.solvers.registry import resolve
-
-    return resolve(name)
+    return resolve(name, items=items)
 
 
 def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: str = "highs", form: str = "standard",
@@ -81,9 +48,8 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
     Parameters
     ----------
     instance : Instance or ItemInstance
-        An item instance (``l3gs-opt/items@1``) goes to :func:`l3gs_opt.solvers.items.solve_items`,
-        which takes ``ilp``, ``lp``, ``brute``, ``bb``/``dp``/``greedy``/``fptas:EPS``,
-        ``rolling:*``, ``rolling-future:*`` and ``mpc:H``.
+        Either form; the method table (:mod:`l3gs_opt.solvers.registry`) says which methods take
+        an item instance (``l3gs-opt/items@1``): ``method_names(items=True)``.
     method : str
         ``ilp``: exact model on ``backend``; ``lp``: its LP relaxation (a bound); any name of
         :func:`method_names`, e.g. ``brute`` (enumeration, tiny instances only).
@@ -121,28 +87,24 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
                      presolve=presolve, options=options)
 
 
-#: The options of ``solve`` each method family uses; a method given another one (not at its
-#: default) warns that it ignores it, e.g. ``exact`` with ``backend="scip"``.
-_USES = {"ilp": ("backend", "form", "presolve"), "lp": ("backend", "form", "presolve"),
-         "rolling": ("backend",), "rolling-future": ("backend",), "mpc": ("backend",)}
 _DEFAULTS = {"backend": "highs", "form": "standard", "presolve": True}
 
 
 def _check_model_options(method: Any, backend: Any, form: Any, presolve: Any) -> None:
     """``backend`` and ``form`` must be known names whatever the method; an option given to a
-    method that does not use it is a warning (it would be dropped silently otherwise)."""
+    method that does not use it (its table entry's ``uses``) is a warning: it would be dropped
+    silently otherwise."""
     import warnings
 
     from l3gs_opt.models import FORMS, Backend
 
-    Backend.parse(backend)
+    given = {"backend": str(Backend.parse(backend)), "form": form, "presolve": presolve}
     if form not in FORMS:
         raise SolveError(f"form {form!r} is not one of {', '.join(FORMS)}")
     if not isinstance(presolve, (bool, np.bool_)):
         raise SolveError(f"presolve = {presolve!r}: must be true or false")
-    family = method.split(":", 1)[0] if isinstance(method, str) else method
-    given = {"backend": str(Backend.parse(backend)), "form": form, "presolve": bool(presolve)}
-    ignored = [k for k, v in given.items() if v != _DEFAULTS[k] and k not in _USES.get(family, ())]
+    uses = entry(method).uses
+    ignored = [k for k in MODEL_OPTIONS if given[k] != _DEFAULTS[k] and k not in uses]
     if ignored:
         warnings.warn(f"method {method!r} does not use {', '.join(ignored)}: ignored", UserWarning, stacklevel=3)
 
@@ -170,10 +132,6 @@ def _solve_scaled(instance: Instance | ItemInstance, exponent: int, method: str,
 
 def _dispatch(instance: Instance | ItemInstance, method: str, *, backend: str, form: str, slot: int | None,
               time_limit_s: float | None, presolve: bool, options: Mapping[str, Any] | None) -> Solution:
-    if isinstance(instance, ItemInstance):
-        from l3gs_opt.solvers.items import solve_items
-
-        return solve_items(instance, method, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
-                           presolve=presolve, options=options)
-    return resolve_method(method)(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s, presolve=presolve,
+    fn = resolve(method, items=isinstance(instance, ItemInstance))
+    return fn(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s, presolve=presolve,
               options=options)

@@ -17,7 +17,7 @@ from .heuristics import slope_fractional_value, solve_progressive, solve_slope, 
 from .mckp import solve_bb, solve_dp, solve_fptas, solve_greedy
 from .rolling import solve_mpc, solve_rolling
 from .exact import solve_exact
-from .items import (solve_items, solve_items_brute_force, solve_items_mpc, solve_items_rolling,
+from .items import (solve_items_brute_force, solve_items_mpc, solve_items_rolling,
                     solve_items_slot)
 from .exact.lagrange import gap_data, lagrangian_value, lp_multipliers, subgradient
 
@@ -30,7 +30,6 @@ __all__ = [
     "solve_dp",
     "solve_fptas",
     "solve_greedy",
-    "solve_items",
     "solve_items_brute_force",
     "solve_items_mpc",
     "solve_items_rolling",

@@ -29,12 +29,11 @@ import itertools
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Callable
 
 import numpy as np
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.problem.arguments import check_time_limit
 from l3gs_opt.problem.items import ItemInstance, item_gain
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
@@ -43,17 +42,13 @@ from ._mckp import MckpResult, OptionTable
 from .mckp import resolve_slot
 from .brute_force import MAX_SCHEDULES
 
-__all__ = ["MAX_CLOSED_SETS", "ITEM_METHODS", "closed_sets", "item_slot_table", "solve_items",
-           "solve_items_slot", "solve_items_rolling", "solve_items_mpc", "solve_items_brute_force"]
+__all__ = ["MAX_CLOSED_SETS", "closed_sets", "item_slot_table", "solve_items_slot", "solve_items_rolling",
+           "solve_items_mpc", "solve_items_brute_force"]
 
 #: Most precedence-closed item sets enumerated for one object in one state. An object whose items
 #: are independent has 2^n of them (a ``distill`` object with L layers about 2^(L+1)); past this
 #: limit the per-slot MCKP is refused rather than left to exhaust memory: use the ILP.
 MAX_CLOSED_SETS = 1 << 16
-
-#: Method names :func:`solve_items` accepts (parametrised ones as ``name:PARAM``).
-ITEM_METHODS = ("ilp", "lp", "brute", "bb", "dp", "greedy", "fptas:EPS", "rolling:SOLVER",
-                "rolling-future:SOLVER", "mpc:H")
 
 Picker = Callable[[OptionTable, "float | None"], MckpResult]
 
@@ -390,57 +385,3 @@ def solve_items_brute_force(instance: ItemInstance, *, slot: int | None = None) 
 
 
 # -- dispatch -----------------------------------------------------------------------------------------
-
-def _with_bound(options: Mapping[str, Any] | None) -> bool:
-    return bool(options["bound"]) if options and "bound" in options else True
-
-
-def solve_items(instance: ItemInstance, method: str = "ilp", *, backend: str = "highs", form: str = "standard",
-                slot: int | None = None, time_limit_s: float | None = None, presolve: bool = True,
-                options: Mapping[str, Any] | None = None) -> Solution:
-    """:func:`l3gs_opt.solve` for an item instance: ``method`` is one of :data:`ITEM_METHODS`.
-
-    ``ilp`` / ``lp``: the item ILP (:func:`l3gs_opt.models.solve_items_ilp`) on ``backend``;
-    ``brute``: enumeration; ``bb``, ``dp``, ``greedy``, ``fptas:EPS``: the single-slot MCKP
-    at ``slot``; ``rolling:SOLVER``, ``rolling-future:SOLVER``, ``mpc:H``: whole-horizon
-    schedulers (``options={"bound": False}`` skips their LP bound).
-
-    Raises
-    ------
-    SolveError
-        A method that does not apply to item instances (``exact``, ``progressive``, ``slope``,
-        ``static`` are written for Problem I/II's chains), or a malformed name.
-    """
-    from .rolling import parse_eps
-
-    time_limit_s = check_time_limit(time_limit_s)
-    if not isinstance(method, str):
-        raise SolveError(f"method {method!r} must be a string")
-    if method in ("ilp", "lp"):
-        from l3gs_opt.models import solve_items_ilp
-
-        return solve_items_ilp(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
-                               presolve=presolve, relax=method == "lp", options=options)
-    if method == "brute":
-        return solve_items_brute_force(instance, slot=slot)
-    if method in ("bb", "dp", "greedy") or method.startswith("fptas:"):
-        if method.startswith("fptas:"):
-            parse_eps(method)
-        return solve_items_slot(instance, method, slot=slot, time_limit_s=time_limit_s, backend=backend)
-    for prefix, future in (("rolling-future:", True), ("rolling:", False)):
-        if method.startswith(prefix):
-            solver = method[len(prefix):]
-            if not solver:
-                raise SolveError(f"method {method!r}: give the per-slot solver, e.g. {prefix}bb")
-            return solve_items_rolling(instance, solver, future=future, slot=slot, time_limit_s=time_limit_s,
-                                       backend=backend, with_bound=_with_bound(options))
-    if method.startswith("mpc:"):
-        text = method[4:]
-        try:
-            horizon = int(text)
-        except ValueError:
-            raise SolveError(f"method {method!r}: H = {text!r} must be a positive integer (slots)") from None
-        return solve_items_mpc(instance, horizon, slot=slot, time_limit_s=time_limit_s, backend=backend,
-                               with_bound=_with_bound(options))
-    raise SolveError(f"method {method!r} does not take an item instance (l3gs-opt/items@1); item methods: "
-                     f"{', '.join(ITEM_METHODS)}")

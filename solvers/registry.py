@@ -1,154 +1,263 @@
-"""Method names of the solvers package, resolved to functions.
+"""The one method table: every method name, for both instance forms, resolved to a function.
 
-``resolve(name)`` returns ``function(instance, *, slot, time_limit_s, **options) -> Solution``
-for a method name such as ``"bb"``; parametrised names (``"fptas:0.01"``, ``"rolling:bb"``,
-``"rolling-future:fptas:0.1"``, ``"mpc:5"``) are parsed here. :func:`l3gs_opt.solve` asks this
-registry for every method that is not an ILP. Options a method does not use (``backend``,
-``form``, ``presolve``, ``options``) are accepted and ignored; the ILP-based ones
-(``rolling:ilp``, ``mpc:H``) use ``backend``.
+``resolve(name)`` returns ``function(instance, *, backend, form, slot, time_limit_s, presolve,
+options) -> Solution`` for an :class:`~l3gs_opt.problem.instance.Instance`, ``resolve(name,
+items=True)`` the same for an :class:`~l3gs_opt.problem.items.ItemInstance`. Parametrised names
+(``"fptas:0.01"``, ``"rolling:bb"``, ``"rolling-future:fptas:0.1"``, ``"mpc:5"``) are parsed here
+and nowhere else; :func:`l3gs_opt.solve`, the simulator and the bench ask this table.
 
-Single-slot methods (``bb``, ``dp``, ``fptas:EPS``, ``greedy``) need ``slot`` unless the
-instance has one slot; multi-slot methods (``rolling:*``, ``rolling-future:*``, ``mpc:H``,
-``progressive``, ``slope``, ``static``) refuse a ``slot``.
+Each :class:`MethodEntry` says which of ``solve``'s options the method uses (``uses``): the others
+are accepted and ignored, and :func:`l3gs_opt.solve` warns when one is given away from its default.
+Its ``kind`` says what it schedules: ``slot`` (one slot's MCKP only: ``bb``, ``dp``, ``greedy``,
+``fptas:EPS``; they need ``slot`` unless the instance has one slot), ``horizon`` (the whole
+horizon only: ``exact``, ``rolling:*``, ``rolling-future:*``, ``mpc:H``, ``progressive``,
+``slope``, ``static``, ``link-dp``; they refuse a ``slot``) or ``either`` (``ilp``, ``lp``,
+``brute``).
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable
+import warnings
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
 
 from l3gs_opt.errors import SolveError
-from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import Solution
 
-from .brute_force import solve_brute_force
-
-__all__ = ["names", "resolve"]
+__all__ = ["MethodEntry", "SolverFn", "entry", "names", "resolve"]
 
 SolverFn = Callable[..., Solution]
+#: ``solve``'s options a method may use beyond ``slot`` and ``time_limit_s``.
+MODEL_OPTIONS = ("backend", "form", "presolve")
 
 
-def _brute(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-           **_model_options: Any) -> Solution:
-    # Enumeration needs no backend, form or presolve: those options do not apply and are ignored.
-    return solve_brute_force(instance, slot=slot)
+@dataclass(frozen=True)
+class MethodEntry:
+    """One method family of the table.
+
+    ``name``: as listed (``fptas:EPS`` for a parametrised one); ``kind``: ``slot``, ``horizon`` or
+    ``either`` (see the module doc); ``uses``: the options of :data:`MODEL_OPTIONS` it uses;
+    ``instance`` / ``items``: ``build(parameter) -> SolverFn`` for each instance form, ``None``
+    where the method does not apply (``parameter`` is the text after the first ``:``, or ``""``).
+    """
+
+    name: str
+    kind: str
+    uses: tuple[str, ...]
+    instance: Callable[[str], SolverFn] | None
+    items: Callable[[str], SolverFn] | None
 
 
-def _with_bound(options: Any) -> bool:
+def _with_bound(options: Mapping[str, Any] | None) -> bool:
     """``options={"bound": False}`` skips the LP bound of the multi-slot heuristics."""
     if options and "bound" in options:
         return bool(options["bound"])
     return True
 
 
-def _single(name: str) -> SolverFn:
-    from . import mckp
+# -- builders: parameter text -> solver function -------------------------------------------------------
 
-    fn = {"bb": mckp.solve_bb, "dp": mckp.solve_dp, "greedy": mckp.solve_greedy}[name]
+def _model(relax: bool, items: bool) -> Callable[[str], SolverFn]:
+    def build(_param: str) -> SolverFn:
+        from l3gs_opt.models import solve_ilp, solve_items_ilp
 
-    def run(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-            **_model_options: Any) -> Solution:
-        return fn(instance, slot=slot, time_limit_s=time_limit_s)
+        def run(instance: Any, *, backend: str = "highs", form: str = "standard", slot: int | None = None,
+                time_limit_s: float | None = None, presolve: bool = True, options: Any = None) -> Solution:
+            fn = solve_items_ilp if items else solve_ilp
+            return fn(instance, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
+                      presolve=presolve, relax=relax, options=options)
 
-    run.__name__ = f"solve_{name}"
+        return run
+
+    return build
+
+
+#: Options of ``exact`` (passed as ``options={...}``).
+EXACT_OPTIONS = ("branching", "lns_width", "heuristics", "max_nodes")
+
+
+def _exact(_param: str) -> SolverFn:
+    from .exact.search import solve_exact
+
+    def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None, options: Any = None,
+            **_unused: Any) -> Solution:
+        opts = dict(options or {})
+        for key in [k for k in opts if k not in EXACT_OPTIONS]:
+            warnings.warn(f"method 'exact': option {key!r} is unknown (known: {', '.join(EXACT_OPTIONS)}); "
+                          "ignored", stacklevel=4)
+            opts.pop(key)
+        return solve_exact(instance, slot=slot, time_limit_s=time_limit_s, **opts)
+
     return run
 
 
-def _fptas(eps: float) -> SolverFn:
-    from . import mckp
+def _brute(items: bool) -> Callable[[str], SolverFn]:
+    def build(_param: str) -> SolverFn:
+        def run(instance: Any, *, slot: int | None = None, **_unused: Any) -> Solution:
+            if items:
+                from .items import solve_items_brute_force
 
-    def run(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-            **_model_options: Any) -> Solution:
-        return mckp.solve_fptas(instance, eps, slot=slot, time_limit_s=time_limit_s)
+                return solve_items_brute_force(instance, slot=slot)
+            from .brute_force import solve_brute_force
 
-    return run
+            return solve_brute_force(instance, slot=slot)
 
+        return run
 
-def _multi(kind: str) -> SolverFn:
-    from . import heuristics
-
-    fn = {"progressive": heuristics.solve_progressive, "slope": heuristics.solve_slope,
-          "static": heuristics.solve_static}[kind]
-
-    def run(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-            options: Any = None, **_model_options: Any) -> Solution:
-        return fn(instance, slot=slot, time_limit_s=time_limit_s, with_bound=_with_bound(options))
-
-    return run
+    return build
 
 
-def _rolling(solver: str, future: bool) -> SolverFn:
+def _single(name: str, items: bool) -> Callable[[str], SolverFn]:
+    def build(param: str) -> SolverFn:
+        from . import mckp
+        from .rolling import parse_eps
+
+        label = f"{name}:{param}" if name == "fptas" else name
+        eps = parse_eps(label) if name == "fptas" else None
+
+        def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None,
+                backend: str = "highs", **_unused: Any) -> Solution:
+            if items:
+                from .items import solve_items_slot
+
+                return solve_items_slot(instance, label, slot=slot, time_limit_s=time_limit_s, backend=backend)
+            if eps is not None:
+                return mckp.solve_fptas(instance, eps, slot=slot, time_limit_s=time_limit_s)
+            fn = {"bb": mckp.solve_bb, "dp": mckp.solve_dp, "greedy": mckp.solve_greedy}[name]
+            return fn(instance, slot=slot, time_limit_s=time_limit_s)
+
+        run.__name__ = f"solve_{name}"
+        return run
+
+    return build
+
+
+def _order(kind: str) -> Callable[[str], SolverFn]:
+    def build(_param: str) -> SolverFn:
+        from . import heuristics
+
+        fn = {"progressive": heuristics.solve_progressive, "slope": heuristics.solve_slope,
+              "static": heuristics.solve_static}[kind]
+
+        def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None,
+                options: Any = None, **_unused: Any) -> Solution:
+            return fn(instance, slot=slot, time_limit_s=time_limit_s, with_bound=_with_bound(options))
+
+        return run
+
+    return build
+
+
+def _rolling(future: bool, items: bool) -> Callable[[str], SolverFn]:
+    prefix = "rolling-future" if future else "rolling"
+
+    def build(solver: str) -> SolverFn:
+        from . import rolling
+
+        if not solver:
+            raise SolveError(f"method '{prefix}:': give the per-slot solver, e.g. {prefix}:bb")
+        rolling.slot_picker(solver)   # validate the per-slot solver name now
+
+        def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None,
+                backend: str = "highs", options: Any = None, **_unused: Any) -> Solution:
+            if items:
+                from .items import solve_items_rolling as fn
+            else:
+                fn = rolling.solve_rolling
+            return fn(instance, solver, future=future, slot=slot, time_limit_s=time_limit_s, backend=backend,
+                      with_bound=_with_bound(options))
+
+        return run
+
+    return build
+
+
+def _mpc(text: str) -> SolverFn:
     from . import rolling
 
-    rolling.slot_picker(solver)   # validate the per-slot solver name now
+    try:
+        horizon = int(text)
+    except ValueError:
+        raise SolveError(f"method 'mpc:{text}': H = {text!r} must be a positive integer (slots)") from None
+    if horizon < 1:
+        raise SolveError(f"method 'mpc:{text}': H = {horizon} must be a positive integer (slots)")
 
-    def run(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-            backend: str = "highs", options: Any = None, **_model_options: Any) -> Solution:
-        return rolling.solve_rolling(instance, solver, future=future, slot=slot, time_limit_s=time_limit_s,
-                                     backend=backend, with_bound=_with_bound(options))
-
-    return run
-
-
-def _mpc(horizon: int) -> SolverFn:
-    from . import rolling
-
-    def run(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-            backend: str = "highs", options: Any = None, **_model_options: Any) -> Solution:
+    def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None,
+            backend: str = "highs", options: Any = None, **_unused: Any) -> Solution:
+        # solve_mpc takes either instance form.
         return rolling.solve_mpc(instance, horizon, slot=slot, time_limit_s=time_limit_s, backend=backend,
                                  with_bound=_with_bound(options))
 
     return run
 
 
-def _link_dp(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
-             **_model_options: Any) -> Solution:
-    from .link_dp import solve_link_dp
+def _link_dp(_param: str) -> SolverFn:
+    def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None,
+            **_unused: Any) -> Solution:
+        from .link_dp import solve_link_dp
 
-    if slot is not None:
-        raise SolveError("method 'link-dp' schedules every slot; it takes no slot")
-    return solve_link_dp(instance, time_limit_s=time_limit_s)
+        if slot is not None:
+            raise SolveError("method 'link-dp' schedules every slot; it takes no slot")
+        return solve_link_dp(instance, time_limit_s=time_limit_s)
 
-
-_FIXED: dict[str, SolverFn] = {"brute": _brute, "link-dp": _link_dp}
-_SINGLE = ("bb", "dp", "greedy")
-_MULTI = ("progressive", "slope", "static")
-_PARAMETRISED = ("fptas:EPS", "mpc:H", "rolling:SOLVER", "rolling-future:SOLVER")
+    return run
 
 
-def names() -> list[str]:
-    """Method names (parametrised ones shown with their parameter, e.g. ``fptas:EPS``)."""
-    return sorted([*_FIXED, *_SINGLE, *_MULTI, *_PARAMETRISED])
+def _entries() -> dict[str, MethodEntry]:
+    E = MethodEntry
+    rows = [
+        E("ilp", "either", MODEL_OPTIONS, _model(False, False), _model(False, True)),
+        E("lp", "either", MODEL_OPTIONS, _model(True, False), _model(True, True)),
+        E("exact", "horizon", (), _exact, None),
+        E("brute", "either", (), _brute(False), _brute(True)),
+        *(E(n, "slot", (), _single(n, False), _single(n, True)) for n in ("bb", "dp", "greedy")),
+        E("fptas:EPS", "slot", (), _single("fptas", False), _single("fptas", True)),
+        E("rolling:SOLVER", "horizon", ("backend",), _rolling(False, False), _rolling(False, True)),
+        E("rolling-future:SOLVER", "horizon", ("backend",), _rolling(True, False), _rolling(True, True)),
+        E("mpc:H", "horizon", ("backend",), _mpc, _mpc),
+        *(E(n, "horizon", (), _order(n), None) for n in ("progressive", "slope", "static")),
+        E("link-dp", "horizon", (), _link_dp, None),
+    ]
+    return {e.name.split(":", 1)[0]: e for e in rows}
 
 
-@functools.lru_cache(maxsize=64)
-def resolve(name: str) -> SolverFn:
-    """The function behind a method name; unknown or malformed names are a :class:`SolveError`."""
-    from .rolling import parse_eps
+#: Family (the name before any ``:``) -> its entry.
+TABLE: dict[str, MethodEntry] = _entries()
 
+
+def names(*, items: bool = False) -> list[str]:
+    """Method names of one instance form, as listed (``ilp`` and ``lp`` first, then sorted;
+    parametrised ones with their parameter, e.g. ``fptas:EPS``)."""
+    listed = [e.name for e in TABLE.values() if (e.items if items else e.instance) is not None]
+    return ["ilp", "lp", *sorted(n for n in listed if n not in ("ilp", "lp"))]
+
+
+def entry(name: str) -> MethodEntry:
+    """The table entry of a method name (``"fptas:0.1"`` -> the ``fptas:EPS`` entry).
+
+    Raises
+    ------
+    SolveError
+        Not a string, or no such method.
+    """
     if not isinstance(name, str):
         raise SolveError(f"method {name!r} must be a string")
-    if name in _FIXED:
-        return _FIXED[name]
-    if name in _SINGLE:
-        return _single(name)
-    if name in _MULTI:
-        return _multi(name)
-    if name.startswith("fptas:"):
-        return _fptas(parse_eps(name))
-    for prefix, future in (("rolling-future:", True), ("rolling:", False)):
-        if name.startswith(prefix):
-            solver = name[len(prefix):]
-            if not solver:
-                raise SolveError(f"method {name!r}: give the per-slot solver, e.g. {prefix}bb")
-            return _rolling(solver, future)
-    if name.startswith("mpc:"):
-        text = name[4:]
-        try:
-            horizon = int(text)
-        except ValueError:
-            raise SolveError(f"method {name!r}: H = {text!r} must be a positive integer (slots)") from None
-        if horizon < 1:
-            raise SolveError(f"method {name!r}: H = {horizon} must be a positive integer (slots)")
-        return _mpc(horizon)
-    raise SolveError(f"method {name!r} is not one of ilp, lp, {', '.join(names())}")
+    family, sep, _ = name.partition(":")
+    found = TABLE.get(family)
+    if found is None or bool(sep) != (":" in found.name):
+        raise SolveError(f"method {name!r} is not one of {', '.join(names())}")
+    return found
+
+
+@functools.lru_cache(maxsize=128)
+def resolve(name: str, *, items: bool = False) -> SolverFn:
+    """The function behind a method name for the ``Instance`` form (``items=False``) or the item
+    form; unknown or malformed names, and methods that do not take that form, are a
+    :class:`SolveError`."""
+    found = entry(name)
+    build = found.items if items else found.instance
+    if build is None:
+        raise SolveError(f"method {name!r} does not take an item instance (l3gs-opt/items@1); item methods: "
+                         f"{', '.join(names(items=True))}")
+    return build(name.partition(":")[2])

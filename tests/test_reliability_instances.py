@@ -27,7 +27,6 @@ from l3gs_opt.input_files import MAX_JSON_DEPTH
 from l3gs_opt.problem.instance_io import (MAX_JSON_BYTES, MAX_NPZ_BYTES, instance_from_dict, load_instance, save_instance)
 from l3gs_opt.problem.items import items_from_instance
 from l3gs_opt.problem.items_io import items_from_dict, load_items, load_problem, save_items
-from l3gs_opt.solvers.items import solve_items
 from l3gs_opt.pipeline.synth import MAX_SYNTH_ENTRIES, synth_instance
 
 
@@ -88,8 +87,6 @@ def test_item6_time_limit_refused_on_the_item_form(method):
     for bad in (-1, 0, math.nan):
         with pytest.raises(SolveError, match=r"^time_limit_s = "):
             solve(inst, method, slot=0 if method in SINGLE else None, time_limit_s=bad)
-        with pytest.raises(SolveError, match=r"^time_limit_s = "):   # the dispatcher checks it too
-            solve_items(inst, method, slot=0 if method in SINGLE else None, time_limit_s=bad)
 
 
 def test_item6_the_limit_is_checked_before_anything_else():

@@ -280,6 +280,7 @@ def test_catalog_units_match_manifest_chunks(world):
     ("separate", "sort", None, "'sort' needs a bundle built as variant sort"),
     ("sort", "rolling:bb", "bb", "solver: applies to l3gs, l3gs-noseg, separate, distill and hierarchy only"),
     ("sort", "l3gs", "rolling:bb", "solver: 'rolling:bb' does not solve one slot's MCKP"),
+    ("sort", "l3gs", "exact", "solver: 'exact' does not solve one slot's MCKP"),
     ("sort", "l3gs", "fptas:2", "solver: method 'fptas:2'"),
     ("sort", "lp", None, "method: 'lp' is a bound"),
 ])
@@ -746,3 +747,20 @@ def test_cli_simulate_resume_and_new_options(world, tmp_path, monkeypatch, capsy
     assert code == 2 and capsys.readouterr().err.startswith("error: resume: needs --out")
     code = main(args[:-1] + ["--sh-upgrade-utility", "1.5"])
     assert code == 2 and "sh_upgrade_utility: 1.5" in capsys.readouterr().err
+
+
+def test_summary_is_typed_and_is_the_record_on_disk(world, tmp_path):
+    """The run summary is a frozen, typed RunSummary; its JSON form is the line in summary.jsonl."""
+    import dataclasses
+
+    from l3gs_opt.simulator.records import RunSummary
+
+    r = _sim(world, "sort", [30_000] * 3).run("l3gs", out_dir=tmp_path)
+    s = r.summary
+    assert isinstance(s, RunSummary)
+    assert isinstance(s.bytes_delivered, int) and s.slots == 3 and len(s.ssim_per_s) == 3
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.bytes_delivered = 0
+    (line,) = [json.loads(x) for x in (tmp_path / "summary.jsonl").read_text().splitlines()]
+    assert line == json.loads(json.dumps(s.to_dict()))
+    assert "client" not in line and s["ssim_mean"] == s.ssim_mean == line["ssim_mean"]

@@ -58,3 +58,47 @@ def test_cli_solve_reaches_the_solvers(tmp_path, capsys) -> None:
     assert main(["solve", str(path), "--method", "bb", "--slot", "1"]) == 0
     out = capsys.readouterr().out
     assert "rolling:bb" in out or "feasible" in out
+
+
+#: A parameter for each parametrised family of the table.
+_PARAMS = {"EPS": "0.25", "SOLVER": "bb", "H": "2"}
+
+
+def _concrete(listed: str) -> str:
+    family, sep, param = listed.partition(":")
+    return f"{family}:{_PARAMS[param]}" if sep else family
+
+
+def test_one_table_serves_both_instance_forms() -> None:
+    """The item form's methods come from the same table; the Problem I/II-only ones refuse it by name."""
+    from l3gs_opt.problem.items import items_from_instance
+
+    assert set(method_names(items=True)) == {"ilp", "lp", "brute", "bb", "dp", "greedy", "fptas:EPS",
+                                             "rolling:SOLVER", "rolling-future:SOLVER", "mpc:H"}
+    assert set(method_names(items=True)) < set(method_names())
+    inst = Instance(representation="layered", bandwidth=[3, 3], cost=[[2, 2]], utility=np.ones((2, 1, 2)))
+    items = items_from_instance(inst)
+    for name in set(method_names()) - set(method_names(items=True)):
+        with pytest.raises(SolveError, match=rf"method '{_concrete(name)}' does not take an item instance"):
+            l3gs_opt.solve(items, _concrete(name))
+
+
+@pytest.mark.parametrize("listed", [n for n in names() if n != "link-dp"])
+def test_kind_says_whether_a_method_takes_a_slot(listed: str) -> None:
+    """``kind`` in the table agrees with what the method does with ``slot`` (two slots, so a
+    single-slot method cannot default to the only one)."""
+    from l3gs_opt.solvers.registry import entry
+
+    name = _concrete(listed)
+    kind = entry(name).kind
+    inst = Instance(representation="layered", bandwidth=[3, 3], cost=[[2, 2]], utility=np.ones((2, 1, 2)))
+    if kind in ("slot", "either"):
+        assert l3gs_opt.solve(inst, name, slot=1).slot == 1
+    else:
+        with pytest.raises(SolveError):
+            l3gs_opt.solve(inst, name, slot=1)
+    if kind in ("horizon", "either"):
+        assert l3gs_opt.solve(inst, name).slot is None
+    else:
+        with pytest.raises(SolveError):
+            l3gs_opt.solve(inst, name)

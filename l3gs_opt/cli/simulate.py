@@ -49,7 +49,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.json:
         from l3gs_opt.jsonout import dumps
 
-        print(dumps(s, where="summary"))
+        print(dumps(s.to_dict(), where="summary"))
         return 0
     label = s["method"] + (f" ({s['solver']})" if s["solver"] else "")
     t = s["timings_mean_s"]

@@ -20,7 +20,7 @@ import numpy as np
 
 from l3gs_opt.simulator.link import Link, max_min_shares, split_bytes
 from l3gs_opt.simulator.config import TIMING_KEYS, SimulationError, SlotInputs
-from l3gs_opt.simulator.records import RecordWriter, SimulationResult
+from l3gs_opt.simulator.records import RecordWriter, RunSummary, SimulationResult
 from l3gs_opt.simulator.schedulers import ItemSlotView, SlotView
 
 __all__ = ["Client", "drive"]
@@ -224,26 +224,24 @@ class Client:
         psnrs = [r["psnr"] for r in self.records]
         renders = {k: sim.renders[k] - self.renders_before[k] for k in sim.renders}
         m = sim.bundle.manifest
-        result.summary = {
-            "method": spec.name, "solver": spec.solver, "slots": sim.T, "slot_s": cfg.slot_s,
-            "ssim_mean": float(np.mean(ssims)), "ssim_per_s": ssims, "psnr_per_s": psnrs,
-            "psnr_mean": float(np.mean([p for p in psnrs if p is not None])) if any(p is not None for p in psnrs)
+        result.summary = RunSummary(
+            method=spec.name, solver=spec.solver, slots=sim.T, slot_s=cfg.slot_s,
+            ssim_mean=float(np.mean(ssims)), ssim_per_s=tuple(ssims), psnr_per_s=tuple(psnrs),
+            psnr_mean=float(np.mean([p for p in psnrs if p is not None])) if any(p is not None for p in psnrs)
             else None,
-            "bytes_delivered": delivered, "bytes_wasted": delivered - useful, "bytes_replaced": replaced,
-            "bytes_unshown": delivered - useful - replaced, "bytes_idle": int(self.idle_total),
-            "bytes_trace": int(sum(sim.link_bytes)), "bytes_share": int(sum(self.history)),
-            "bytes_model": int(cat.bytes[cat.top_units()].sum()),
-            "splats_final": int(rows.size), "timings_mean_s": timings, "run_s": time.perf_counter() - self.started,
-            "loadavg_start": self.load_start, "loadavg_end": list(os.getloadavg()),
-            "bundle": str(sim.bundle.path), "variant": m["variant"], "representation": cat.representation,
-            "view": cat.view, "units": list(cat.grid), "reference": sim.reference_label,
-            "config": dataclasses.asdict(cfg), "render_backend": sim.render_backend, "renders": renders,
-            "resumed_slots": self.first_slot, "run_id": self.run, **sim.info,
-        }
-        if self.index is not None:
-            result.summary.update(client=self.index, clients=self.clients)
+            bytes_delivered=delivered, bytes_wasted=delivered - useful, bytes_replaced=replaced,
+            bytes_unshown=delivered - useful - replaced, bytes_idle=int(self.idle_total),
+            bytes_trace=int(sum(sim.link_bytes)), bytes_share=int(sum(self.history)),
+            bytes_model=int(cat.bytes[cat.top_units()].sum()),
+            splats_final=int(rows.size), timings_mean_s=timings, run_s=time.perf_counter() - self.started,
+            loadavg_start=tuple(self.load_start), loadavg_end=tuple(os.getloadavg()),
+            bundle=str(sim.bundle.path), variant=m["variant"], representation=cat.representation,
+            view=cat.view, units=tuple(cat.grid), reference=sim.reference_label,
+            config=dataclasses.asdict(cfg), render_backend=sim.render_backend, renders=renders,
+            resumed_slots=self.first_slot, run_id=self.run, client=self.index,
+            clients=None if self.index is None else self.clients, info=dict(sim.info))
         result.final_rows = rows
-        self.writer.summary(result.summary)
+        self.writer.summary(result.summary.to_dict())
         return result
 
 

@@ -14,7 +14,7 @@ __all__ = ["SIM_METHODS", "SLOT_SOLVERS", "ITEM_SOLVERS", "MethodSpec", "method_
 #: The simulator's own methods; every solver method name is accepted too.
 SIM_METHODS = ("l3gs", "l3gs-noseg", "separate", "sort", "preload", "distill", "hierarchy")
 #: Solver names that solve one slot's MCKP (``--solver`` of l3gs, l3gs-noseg, separate).
-SLOT_SOLVERS = ("bb", "dp", "greedy", "fptas:EPS", "ilp", "exact", "brute")
+SLOT_SOLVERS = ("bb", "dp", "greedy", "fptas:EPS", "ilp", "brute")
 #: ``--solver`` of distill and hierarchy: the item MCKP of one slot, or an item method over the
 #: rest of the run (whose first slot is sent first).
 ITEM_SOLVERS = ("bb", "dp", "greedy", "fptas:EPS", "ilp", "brute", "rolling:SOLVER", "rolling-future:SOLVER",
@@ -40,16 +40,20 @@ class MethodSpec:
 
 
 def _is_slot_solver(name: str) -> bool:
-    return name in ("bb", "dp", "greedy", "ilp", "exact", "brute") or name.startswith("fptas:")
+    """Whether the method table says ``name`` solves one slot's problem (``kind`` slot or either)."""
+    from l3gs_opt.methods import METHODS
+
+    found = METHODS.get(name.partition(":")[0])
+    return found is not None and found.kind != "horizon"
 
 
-def _check_solver_name(name: str, field: str) -> None:
+def _check_solver_name(name: str, field: str, *, items: bool = False) -> None:
     from l3gs_opt.methods import resolve_method
 
     if name == "lp":
         raise SimulationError(field, "'lp' is a bound (a relaxation), not a schedule")
     try:
-        resolve_method(name)
+        resolve_method(name, items=items)
     except SolveError as exc:
         raise SimulationError(field, str(exc)) from None
 
@@ -58,11 +62,11 @@ def _item_spec(name: str, solver: str | None, kw: dict, config: SimConfig) -> Me
     solver = solver or "bb"
     if not isinstance(solver, str) or not solver:
         raise SimulationError("solver", f"{solver!r} must be a solver name")
-    if _is_slot_solver(solver) and solver != "exact":
-        _check_solver_name(solver, "solver")
+    if _is_slot_solver(solver):
+        _check_solver_name(solver, "solver", items=True)
         return MethodSpec(name, solver, name, "utility", SlotSolverScheduler(solver, name=name, **kw))
     if solver.startswith(("rolling:", "rolling-future:", "mpc:")):
-        _check_solver_name(solver, "solver")
+        _check_solver_name(solver, "solver", items=True)
         return MethodSpec(name, solver, name, "utility",
                           HorizonScheduler(solver, horizon=config.horizon, name=name, **kw))
     raise SimulationError("solver", f"{solver!r} does not schedule an item instance; {name!r} takes one of "
@@ -119,6 +123,6 @@ def method_spec(name: str, *, solver: str | None = None, representation: str = "
     if name == "preload":
         return MethodSpec(name, None, "scene", "bundle", PreloadScheduler(), preload=True)
     _check_solver_name(name, "method")
-    if _is_slot_solver(name) and name not in ("ilp", "exact", "brute"):
+    if _is_slot_solver(name) and name not in ("ilp", "brute"):
         return MethodSpec(name, None, "object", "utility", SlotSolverScheduler(name, name=name, **kw))
     return MethodSpec(name, None, "object", "utility", HorizonScheduler(name, horizon=config.horizon, **kw))

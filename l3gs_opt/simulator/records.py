@@ -13,15 +13,16 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
 from l3gs_opt.records import OutputLock, RecordLog, prepare_path, read_records, repair_torn_tail, rewrite_records
 from l3gs_opt.simulator.config import SimulationError
 
-__all__ = ["run_id", "RecordWriter"]
+__all__ = ["run_id", "RecordWriter", "RunSummary", "SimulationResult"]
 
 SLOTS_FILE, SUMMARY_FILE = "slots.jsonl", "summary.jsonl"
 
@@ -136,14 +137,94 @@ class RecordWriter:
             self._owner = None
 
 
+@dataclass(frozen=True)
+class RunSummary:
+    """What one finished run delivered and cost: the run's line of ``summary.jsonl``.
+
+    Bytes are integers (whole run); ``slot_s``, ``run_s`` and ``timings_mean_s`` (per slot, by
+    stage) in seconds; ``ssim_per_s`` / ``psnr_per_s`` one value per slot (PSNR ``None`` where the
+    picture equals the reference). ``bytes_wasted`` = delivered but not shown, split into
+    ``bytes_replaced`` (units superseded by a higher one) and ``bytes_unshown`` (partial splats,
+    units never shown). ``client`` / ``clients``: set in shared-link runs only. ``info``: the
+    caller's extra keys (e.g. the trace's name), written beside the others.
+
+    :meth:`to_dict` is the JSON record; reading by key (``summary["bytes_delivered"]``,
+    :meth:`get`, :meth:`items`) reads that record, so code that reads records from disk and
+    summaries in memory is the same.
+    """
+
+    method: str
+    solver: str | None
+    slots: int
+    slot_s: float
+    ssim_mean: float
+    ssim_per_s: tuple[float, ...]
+    psnr_per_s: tuple[float | None, ...]
+    psnr_mean: float | None
+    bytes_delivered: int
+    bytes_wasted: int
+    bytes_replaced: int
+    bytes_unshown: int
+    bytes_idle: int
+    bytes_trace: int
+    bytes_share: int
+    bytes_model: int
+    splats_final: int
+    timings_mean_s: Mapping[str, float]
+    run_s: float
+    loadavg_start: tuple[float, ...]
+    loadavg_end: tuple[float, ...]
+    bundle: str
+    variant: str
+    representation: str
+    view: str
+    units: tuple[int, ...]
+    reference: str
+    config: Mapping[str, Any]
+    render_backend: str
+    renders: Mapping[str, int]
+    resumed_slots: int
+    run_id: str
+    client: int | None = None
+    clients: int | None = None
+    info: Mapping[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """The JSON record (lists for sequences; ``info`` flattened; ``client``/``clients`` only
+        when set)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "info" or (f.name in ("client", "clients") and value is None):
+                continue
+            if isinstance(value, tuple):
+                value = list(value)
+            elif isinstance(value, Mapping):
+                value = dict(value)
+            out[f.name] = value
+        return {**out, **self.info}
+
+    def __getitem__(self, key: str) -> Any:
+        return self.to_dict()[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.to_dict().get(key, default)
+
+    def items(self) -> Iterator[tuple[str, Any]]:
+        return iter(self.to_dict().items())
+
+    def keys(self) -> Iterator[str]:
+        return iter(self.to_dict())
+
+
 @dataclass
 class SimulationResult:
-    """One run: a record per slot and the summary (``to_dict``)."""
+    """One run: a record per slot (dicts, as written to ``slots.jsonl``) and the :class:`RunSummary`."""
 
     method: str
     solver: str | None
     records: list = field(default_factory=list)
-    summary: dict = field(default_factory=dict)
+    summary: RunSummary | None = None
     #: Rows of :attr:`Simulation.scene` shown in the last slot.
     final_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
@@ -156,4 +237,4 @@ class SimulationResult:
         return float(np.mean(self.ssim_per_s)) if self.records else float("nan")
 
     def to_dict(self) -> dict:
-        return dict(self.summary)
+        return {} if self.summary is None else self.summary.to_dict()
