@@ -196,63 +196,78 @@ def composite_backward(sub_start, pair_splat, means2d, conics, opac, feats, widt
 
 
 if HAVE_NUMBA:
-    @numba.njit(cache=True)
+    @numba.njit(inline="always")
+    def _cells(i, j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx, alpha_cut, keys, start):
+        """Sub-tiles of splat ``i`` (at position ``j`` of the depth order) whose best alpha reaches
+        ``alpha_cut``; their ids go to ``keys[start:]`` unless ``start < 0``. Returns their count.
+
+        The cull ``o exp(-lam d^2 / 2) >= cut`` is first decided on ``d^2`` against
+        ``2 log(o / cut) / lam`` without the exp; only within a relative 1e-6 of that radius is the
+        exp evaluated, so the survivors are exactly those of the plain test."""
+        mx, my = means2d[i, 0], means2d[i, 1]
+        a, b, c = conics[i, 0], conics[i, 1], conics[i, 2]
+        half_tr = 0.5 * (a + c)
+        det = a * c - b * b
+        lam = det / (half_tr + np.sqrt(max(half_tr * half_tr - det, 0.0)))
+        lam = max(lam, 0.0) * (1.0 - 1e-6)
+        o = opac[i]
+        if not o >= alpha_cut:
+            return 0
+        d2max = 2.0 * np.log(o / alpha_cut) / lam if lam > 0.0 else np.inf
+        n = 0
+        for ty in range(sy0[j], sy1[j]):
+            y_lo = ty * sub + 0.5
+            y_hi = min(ty * sub + sub, height) - 0.5
+            dy = max(y_lo - my, my - y_hi, 0.0)
+            for tx in range(sx0[j], sx1[j]):
+                x_lo = tx * sub + 0.5
+                x_hi = min(tx * sub + sub, width) - 0.5
+                dx = max(x_lo - mx, mx - x_hi, 0.0)
+                d2 = dx * dx + dy * dy
+                if d2 > d2max * (1.0 + 1e-6):
+                    continue
+                if d2 >= d2max * (1.0 - 1e-6) and o * np.exp(-0.5 * lam * d2) < alpha_cut:
+                    continue
+                if start >= 0:
+                    keys[start + n] = ty * gsx + tx
+                n += 1
+        return n
+
+    @numba.njit(cache=True, parallel=True)
     def _pairs_kernel(order, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx, nsub,
                       alpha_cut):
-        """(splat, sub-tile) pairs surviving the exact alpha cull, stably bucketed by sub-tile."""
+        """(splat, sub-tile) pairs surviving the exact alpha cull, stably bucketed by sub-tile: the
+        cull in parallel over splats (count, then write at the counts' offsets), the bucketing
+        sequential in depth order."""
         n = order.shape[0]
-        keep_count = np.zeros(n, np.int64)
-        bucket = np.zeros(nsub + 1, np.int64)
-        # pass 1: count survivors per splat and per sub-tile
+        count = np.zeros(n + 1, np.int64)
+        none = np.zeros(0, np.int64)
+        for j in numba.prange(n):
+            count[j + 1] = _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx,
+                                  alpha_cut, none, -1)
         for j in range(n):
-            i = order[j]
-            mx, my = means2d[i, 0], means2d[i, 1]
-            a, b, c = conics[i, 0], conics[i, 1], conics[i, 2]
-            half_tr = 0.5 * (a + c)
-            det = a * c - b * b
-            lam = det / (half_tr + np.sqrt(max(half_tr * half_tr - det, 0.0)))
-            lam = max(lam, 0.0) * (1.0 - 1e-6)
-            for ty in range(sy0[j], sy1[j]):
-                y_lo = ty * sub + 0.5
-                y_hi = min(ty * sub + sub, height) - 0.5
-                dy = max(y_lo - my, my - y_hi, 0.0)
-                for tx in range(sx0[j], sx1[j]):
-                    x_lo = tx * sub + 0.5
-                    x_hi = min(tx * sub + sub, width) - 0.5
-                    dx = max(x_lo - mx, mx - x_hi, 0.0)
-                    if opac[i] * np.exp(-0.5 * lam * (dx * dx + dy * dy)) >= alpha_cut:
-                        bucket[ty * gsx + tx + 1] += 1
-                        keep_count[j] += 1
+            count[j + 1] += count[j]
+        total = count[n]
+        cell = np.empty(total, np.int64)
+        for j in numba.prange(n):
+            if count[j + 1] > count[j]:
+                _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx, alpha_cut,
+                       cell, count[j])
+        bucket = np.zeros(nsub + 1, np.int64)
+        for p in range(total):
+            bucket[cell[p] + 1] += 1
         for s in range(nsub):
             bucket[s + 1] += bucket[s]
-        total = bucket[nsub]
         out_splat = np.empty(total, np.int64)
         out_key = np.empty(total, np.int64)
         fill = bucket[:nsub].copy()
-        # pass 2: fill in depth order (stable within each sub-tile)
         for j in range(n):
-            if keep_count[j] == 0:
-                continue
             i = order[j]
-            mx, my = means2d[i, 0], means2d[i, 1]
-            a, b, c = conics[i, 0], conics[i, 1], conics[i, 2]
-            half_tr = 0.5 * (a + c)
-            det = a * c - b * b
-            lam = det / (half_tr + np.sqrt(max(half_tr * half_tr - det, 0.0)))
-            lam = max(lam, 0.0) * (1.0 - 1e-6)
-            for ty in range(sy0[j], sy1[j]):
-                y_lo = ty * sub + 0.5
-                y_hi = min(ty * sub + sub, height) - 0.5
-                dy = max(y_lo - my, my - y_hi, 0.0)
-                for tx in range(sx0[j], sx1[j]):
-                    x_lo = tx * sub + 0.5
-                    x_hi = min(tx * sub + sub, width) - 0.5
-                    dx = max(x_lo - mx, mx - x_hi, 0.0)
-                    if opac[i] * np.exp(-0.5 * lam * (dx * dx + dy * dy)) >= alpha_cut:
-                        s = ty * gsx + tx
-                        out_splat[fill[s]] = i
-                        out_key[fill[s]] = s
-                        fill[s] += 1
+            for p in range(count[j], count[j + 1]):
+                s = cell[p]
+                out_splat[fill[s]] = i
+                out_key[fill[s]] = s
+                fill[s] += 1
         return out_splat, out_key
 
 

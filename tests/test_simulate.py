@@ -183,9 +183,9 @@ def test_chunk_streams_in_descending_utility(world):
 
 
 def test_table_lookup_matches_exact_at_grid_viewpoints(world):
-    sim = _sim(world, "sort", [30_000] * 2, SimConfig(width=64, height=48, utility="table"))
+    sim = _sim(world, "sort", [30_000] * 2, SimConfig(width=64, height=48, utility_mode="table"))
     cat = sim.catalog("object")
-    table = sim._table(cat)
+    table = sim.valuation()._table(cat)
     for p, o in ((0, 0), (4, 7), (8, 20)):
         cam = table.camera(p, o)
         exact = np.bincount(cat.unit_of_row, weights=splat_utility(sim.scene, cam), minlength=cat.units)
@@ -197,10 +197,10 @@ def test_table_lookup_matches_exact_at_grid_viewpoints(world):
     r = sim.run("l3gs")
     assert len(r.records) == 2 and r.summary["bytes_delivered"] == 60_000
     # distill in table mode: the object view's table split by each cell's mean upgrade share.
-    sim = _sim(world, "distill", [30_000] * 2, SimConfig(width=64, height=48, utility="table"))
+    sim = _sim(world, "distill", [30_000] * 2, SimConfig(width=64, height=48, utility_mode="table"))
     split, whole = sim.catalog("distill"), sim.catalog("object")
-    pred = sim.prediction(0)
-    np.testing.assert_allclose(sim._unit_utility(split, pred)[0].sum(-1), sim._unit_utility(whole, pred)[0])
+    val = sim.valuation()
+    np.testing.assert_allclose(val.unit_values(0, split, None)[0].sum(-1), val.unit_values(0, whole, None)[0])
     r = sim.run("distill")
     assert r.summary["bytes_delivered"] == 60_000 and r.records[-1]["splats_shown"] > 0
 
@@ -396,20 +396,18 @@ def test_distill_catalog_and_utility_split(world):
         assert split.bytes[k] == c["bytes"] and split.splats[k] == c["splats"]
     assert np.array_equal(split.bytes.reshape(J, L, 2).sum(-1), whole.bytes.reshape(J, L))
     # The split keeps Eq. 1: compact + upgrade utility of a layer = its utility in the object view.
-    pred = sim.prediction(0)
-    u_split, _ = sim._unit_utility(split, pred)
-    u_whole, _ = sim._unit_utility(whole, pred)
+    u_split, _ = sim.valuation().unit_values(0, split, None)
+    u_whole, _ = sim.valuation().unit_values(0, whole, None)
     np.testing.assert_allclose(u_split.sum(-1), u_whole, rtol=1e-12)
     assert np.all(u_split[..., 1] > 0)
 
 
 def _views(sim, view, budget, held=None):
     """The slot-0 SlotView of the object view and the ItemSlotView of ``view`` with ``budget`` bytes."""
-    pred = sim.prediction(0)
     out = []
     for name in ("object", view):
         cat = sim.catalog(name)
-        u, _ = sim._unit_utility(cat, pred)
+        u, _ = sim.valuation().unit_values(0, cat, None)
         h = np.zeros(cat.grid, bool) if held is None else held(cat)
         kw = dict(slot=0, slots_left=1, representation=cat.representation, cost=cat.cost, utility=u,
                   predicted_bytes=budget, bank_bytes=0, in_flight_bytes=0, held=h,
@@ -518,7 +516,7 @@ def test_item_methods_take_item_solvers(world, bundle, method, solver):
 def _slot_value(sim, client):
     """Predicted utility shown at the end of slot 0 (separate: each object's best complete version)."""
     cat = client.cat
-    U, _ = sim._unit_utility(cat, sim.prediction(0))
+    U, _ = sim.valuation().unit_values(0, cat, None)
     J, L = cat.shape
     done = client.complete.reshape(J, L) & ~cat.empty
     return sum(max([U[j, l] for l in range(L) if done[j, l]], default=0.0) for j in range(J))
@@ -764,3 +762,74 @@ def test_summary_is_typed_and_is_the_record_on_disk(world, tmp_path):
     (line,) = [json.loads(x) for x in (tmp_path / "summary.jsonl").read_text().splitlines()]
     assert line == json.loads(json.dumps(s.to_dict()))
     assert "client" not in line and s["ssim_mean"] == s.ssim_mean == line["ssim_mean"]
+
+
+# ---------------------------------------------------------------------------------------- utilities
+@pytest.mark.parametrize("utility", ["visibility", "visibility-held", "coverage", "counterfactual"])
+def test_a_run_by_another_utility_is_its_own_record(world, tmp_path, utility):
+    config = SimConfig(width=64, height=48, samples_per_slot=1)
+    sim = _sim(world, "sort", [30_000] * 3, config)
+    eq1 = sim.run("l3gs", out_dir=tmp_path)
+    other = sim.run("l3gs", utility=utility, out_dir=tmp_path)
+    assert (eq1.summary.utility, other.summary.utility, other.summary.order_utility) == ("eq1", utility, utility)
+    assert all(r["utility"] == utility for r in other.records)
+    lines = [json.loads(x) for x in (tmp_path / "summary.jsonl").read_text().splitlines()]
+    assert sorted(x["utility"] for x in lines) == sorted(["eq1", utility])   # neither replaced the other
+    assert eq1.summary.run_id != other.summary.run_id
+    again = sim.run("l3gs", utility=utility, out_dir=tmp_path, resume=True)
+    assert again.summary.resumed_slots == 3 and again.ssim_per_s == other.ssim_per_s
+
+
+def test_held_aware_values_with_everything_held_are_visibility(world):
+    sim = _sim(world, "sort", [30_000] * 2, SimConfig(width=64, height=48, samples_per_slot=2))
+    cat = sim.catalog("object")
+    everything = np.ones(sim.scene.num_splats, bool)
+    plain, _ = sim.valuation("visibility").unit_values(0, cat, None)
+    held, _ = sim.valuation("visibility-held").unit_values(0, cat, everything)
+    np.testing.assert_array_equal(plain, held)
+    nothing, _ = sim.valuation("visibility-held").unit_values(0, cat, np.zeros(sim.scene.num_splats, bool))
+    assert np.all(nothing >= plain - 1e-9) and nothing.sum() > plain.sum()   # no occluders: worth more
+
+
+def test_order_utility_is_a_separate_choice(world):
+    sim = _sim(world, "sort", [30_000] * 2, SimConfig(width=64, height=48, samples_per_slot=1))
+    cat = sim.catalog("object")
+    val = sim.valuation("eq1", "visibility")
+    vis = sim.splat_values(0, "visibility")
+    for k in range(cat.units):
+        rows = cat.rows[k]
+        got = val.splat_order(0, cat, k, None)
+        assert np.array_equal(got, rows[np.argsort(-vis[rows], kind="stable")])
+    r = sim.run("l3gs", order_utility="visibility")
+    assert (r.summary.utility, r.summary.order_utility) == ("eq1", "visibility")
+
+
+def test_visibility_table_matches_the_utility_at_grid_viewpoints(world):
+    sim = _sim(world, "sort", [30_000] * 2, SimConfig(width=64, height=48, utility="visibility",
+                                                      utility_mode="table"))
+    cat = sim.catalog("object")
+    val = sim.valuation()
+    table = val._table(cat)
+    prep = sim.prepared(val.utility)
+    for p, o in ((0, 0), (4, 7)):
+        cam = table.camera(p, o)
+        exact = np.bincount(cat.unit_of_row, weights=val.utility.splat_values(prep, [cam]), minlength=cat.units)
+        got = np.zeros(cat.shape)
+        part = table.lookup(cam)
+        got[:part.shape[0], :part.shape[1]] = part
+        np.testing.assert_allclose(got.ravel(), exact, rtol=1e-9, atol=1e-9)
+    with pytest.raises(SimulationError, match="utility_mode: 'table': utility 'coverage' depends on what is held"):
+        _sim(world, "sort", [30_000] * 2, SimConfig(width=64, height=48, utility="coverage",
+                                                    utility_mode="table")).run("l3gs")
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"utility": "table"}, "utility: 'table' is a utility mode: use utility_mode='table'"),
+    ({"utility": "nope"}, "utility: utility 'nope' is not one of eq1, visibility"),
+    ({"order_utility": "nope"}, "order_utility: utility 'nope'"),
+    ({"utility_mode": "grid"}, "utility_mode: 'grid' is not one of exact, table"),
+    ({"utility": "no_such_module_xyz:f"}, "cannot import 'f' from 'no_such_module_xyz'"),
+])
+def test_bad_utility_settings_are_named(kw, match):
+    with pytest.raises(SimulationError, match=match):
+        SimConfig(**kw)

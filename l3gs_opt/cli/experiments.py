@@ -53,7 +53,7 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
                      starts=args.starts, window_s=args.window, paths=_list(args.paths), methods=_list(args.methods),
                      ablations=_list(args.ablations), ablation_methods=_list(args.ablation_methods),
                      width=args.width, height=args.height, ceiling_time_limit_s=args.time_limit,
-                     ceiling_check_s=args.check_time, seed=args.seed)
+                     ceiling_check_s=args.check_time, seed=args.seed, utilities=_list(args.utilities))
     n = len(plan.tasks())
     load = os.getloadavg()[0]
     print(f"plan: {n} records ({len(plan.scenes)} scene(s), {len(plan.windows())} window(s), {len(plan.paths)} "
@@ -106,5 +106,8 @@ def register(subparsers) -> None:
     p.add_argument("--check-time", type=float, default=None, metavar="S",
                    help="seconds of the ilp/highs cross-check of each DP ceiling, 0 = none (default 10, quick 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random window starts")
+    p.add_argument("--utilities", default=None, metavar="A,B",
+                   help="comma-separated splat utilities; every method that schedules by a utility runs once per "
+                        "utility (default eq1; e.g. eq1,visibility)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_experiments)

@@ -60,7 +60,7 @@ def _cmd_from_scene(args: argparse.Namespace) -> int:
                                     predict=args.predict, samples_per_slot=args.samples_per_slot,
                                     mapping=Z_UP_MAPPING if args.up == "z" else PoseMapping(),
                                     width=args.width, height=args.height, fov_deg=args.fov,
-                                    options=Options(budget=args.budget), progress=True)
+                                    options=Options(budget=args.budget), progress=True, utility=args.utility)
     path = save_instance(instance, args.output)
     print(f"wrote {path}: {instance!r}")
     return 0
@@ -284,6 +284,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--width", type=int, default=800)
     f.add_argument("--height", type=int, default=600)
     f.add_argument("--fov", type=float, default=70.0, help="horizontal field of view, degrees")
+    f.add_argument("--utility", default="eq1", metavar="NAME",
+                   help="splat utility: eq1 (default), visibility, visibility-held, coverage, counterfactual, "
+                        "or MODULE:NAME")
     f.add_argument("-o", "--output", required=True, help="output file (.json or .npz)")
     f.set_defaults(func=_cmd_from_scene)
     c = inst.add_parser("check", help="validate an instance file and summarise it")
@@ -344,6 +347,9 @@ def build_parser() -> argparse.ArgumentParser:
     from l3gs_opt.cli.simulate import register as register_simulate
 
     register_simulate(sub)
+    from l3gs_opt.cli.utility import register as register_utility
+
+    register_utility(sub)
     from l3gs_opt.cli.experiments import register as register_experiments
 
     register_experiments(sub)

@@ -21,6 +21,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
                        bandwidth_predictor=args.bandwidth_predictor, robust=args.robust, utility=args.utility,
+                       order_utility=args.order_utility, utility_mode=args.utility_mode,
                        time_limit_s=args.time_limit, horizon=args.horizon, fill=not args.no_fill,
                        backend=args.backend, substeps=args.substeps, bandwidth_bias=args.bandwidth_bias,
                        sh_upgrade_utility=args.sh_upgrade_utility)
@@ -102,8 +103,13 @@ def register(subparsers) -> None:
     p.add_argument("--viewport", default="lr", choices=["lr", "last", "oracle"], help="viewport predictor")
     p.add_argument("--bandwidth-predictor", default="harmonic", choices=["harmonic", "last", "oracle"])
     p.add_argument("--robust", action="store_true", help="RobustMPC's discount on the bandwidth prediction")
-    p.add_argument("--utility", default="exact", choices=["exact", "table"],
-                   help="Eq. 1 per predicted viewpoint, or a viewpoint table built first")
+    p.add_argument("--utility", default="eq1", metavar="NAME",
+                   help="splat utility that values the chunks: eq1 (the paper's Eq. 1, default), visibility, "
+                        "visibility-held, coverage, counterfactual, or MODULE:NAME (a user's function or class)")
+    p.add_argument("--order-utility", default=None, metavar="NAME",
+                   help="utility that orders the splats inside a chunk (default: --utility)")
+    p.add_argument("--utility-mode", default="exact", choices=["exact", "table"],
+                   help="the utility per predicted viewpoint, or a viewpoint table built first (held-free utilities)")
     p.add_argument("--samples-per-slot", type=int, default=2, help="predicted viewpoints averaged per slot")
     p.add_argument("--teacher", default=None,
                    help="reference scene (PLY); default: the bundle's recorded teacher, else its largest model")

@@ -19,6 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from l3gs_opt.errors import L3gsError
+from l3gs_opt.pipeline.utilities import DEFAULT_UTILITY
 
 __all__ = ["ExperimentError", "SceneSpec", "PathSpec", "TraceSpec", "Task", "ExperimentPlan", "make_plan",
            "default_traces", "trace_class", "scaled_mbps", "method_variant", "ABLATIONS",
@@ -49,6 +50,14 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 _PREFERRED = {"l3gs": "layered", "l3gs-noseg": "layered", "preload": "layered", "separate": "separate",
               "sort": "sort", "distill": "distill", "hierarchy": "hierarchy"}
 _VARIANT_ORDER = ("layered", "sort", "separate", "distill", "hierarchy")
+def truth_utility(utility: str) -> str:
+    """The utility a ceiling of ``utility``'s runs is the optimum of: itself when held-free; else
+    ``visibility`` (a fixed per-chunk value is what Problem I needs)."""
+    from l3gs_opt.pipeline.utilities import get_utility
+
+    return "visibility" if get_utility(utility).held_aware else utility
+
+
 #: Methods that never look at a prediction: their ablation runs would repeat the plain one.
 _PREDICTION_FREE = ("sort", "preload")
 #: Baselines of the headline (the paper's L3GS against the other delivery schemes).
@@ -220,11 +229,20 @@ class Task:
     method: str | None = None
     ablation: str = "none"
     role: str = "ceiling"
+    #: The splat utility the method schedules by (a ceiling's: the utility it is the optimum of).
+    utility: str = DEFAULT_UTILITY
 
     @property
     def record_id(self) -> str:
         what = "ceiling" if self.kind == "ceiling" else f"{self.method}/{self.ablation}"
-        return f"{self.scene}/{self.variant}/{self.trace}@{self.start_s}/{self.path}/{what}"
+        # eq1 records keep the ids they had before utilities were named (their runs still resume)
+        tag = "" if self.utility == DEFAULT_UTILITY else f"[{self.utility}]"
+        return f"{self.scene}/{self.variant}/{self.trace}@{self.start_s}/{self.path}/{what}{tag}"
+
+    @property
+    def label(self) -> str:
+        """The method as reports show it: ``l3gs``, or ``l3gs[visibility]`` for another utility."""
+        return self.method if self.utility == DEFAULT_UTILITY else f"{self.method}[{self.utility}]"
 
     @property
     def group(self) -> tuple:
@@ -269,6 +287,11 @@ class ExperimentPlan:
     quick : bool
     notes : tuple of str
         Methods left out and why.
+    utilities : tuple of str
+        Splat utilities (:mod:`l3gs_opt.pipeline.utilities`): every method that schedules by a
+        utility runs once per utility; the others (``sort``, ``preload``) once. Each utility's
+        records are compared with the ceiling of its own values (a held-aware utility's: those of
+        ``visibility``, its held-free base), so utilities are never summed together.
     """
 
     scenes: tuple
@@ -290,6 +313,7 @@ class ExperimentPlan:
     seed: int = 0
     quick: bool = False
     notes: tuple = ()
+    utilities: tuple = (DEFAULT_UTILITY,)
 
     def windows(self) -> list[tuple[TraceSpec, int]]:
         return [(tr, int(s)) for tr, starts in zip(self.traces, self.starts) for s in starts]
@@ -302,21 +326,32 @@ class ExperimentPlan:
             for tr, start in self.windows():
                 for p in self.paths:
                     sims: list[Task] = []
-                    for m, v in self.methods:
-                        sims.append(Task("sim", sc.name, v, tr.name, start, p.name, m, "none", "main"))
-                    for cond in self.ablations:
-                        for m, v in self.ablation_methods:
-                            sims.append(Task("sim", sc.name, v, tr.name, start, p.name, m, cond, "ablation"))
-                    for m, v in self.variant_methods:
-                        sims.append(Task("sim", sc.name, v, tr.name, start, p.name, m, "none", "variant"))
+                    for role, pairs, conds in (("main", self.methods, ("none",)),
+                                               ("ablation", self.ablation_methods, self.ablations),
+                                               ("variant", self.variant_methods, ("none",))):
+                        for cond in conds:
+                            for m, v in pairs:
+                                for u in self.method_utilities(m, v):
+                                    sims.append(Task("sim", sc.name, v, tr.name, start, p.name, m, cond, role, u))
                     variants = [v for v in _VARIANT_ORDER if any(t.variant == v for t in sims)]
-                    out += [Task("ceiling", sc.name, v, tr.name, start, p.name) for v in variants]
+                    truths = list(dict.fromkeys(truth_utility(t.utility) for t in sims))
+                    out += [Task("ceiling", sc.name, v, tr.name, start, p.name, utility=u)
+                            for v in variants for u in truths]
                     order = {g: i for i, g in enumerate(dict.fromkeys(t.group for t in sims))}
                     out += sorted(sims, key=lambda t: order[t.group])
         ids = [t.record_id for t in out]
         if len(set(ids)) != len(ids):
             raise ExperimentError("methods", "the plan lists a record twice (a method given twice?)")
         return out
+
+    def method_utilities(self, method: str, variant: str) -> tuple:
+        """The utilities ``method`` runs with on ``variant``: all of the plan's when it schedules by a
+        utility, else the default only."""
+        from l3gs_opt.scene.bundle import REPRESENTATION
+        from l3gs_opt.simulator.simulation import method_spec
+
+        spec = method_spec(method, representation=REPRESENTATION[variant], variant=variant)
+        return self.utilities if spec.order == "utility" else (DEFAULT_UTILITY,)
 
     def config(self, ablation: str = "none"):
         from l3gs_opt.simulator.simulation import SimConfig
@@ -326,6 +361,8 @@ class ExperimentPlan:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
+        if tuple(d["utilities"]) == (DEFAULT_UTILITY,):
+            del d["utilities"]   # plans recorded before utilities had names still resume
         for scene in d["scenes"]:
             # Written only when set, so plans recorded before the option existed still resume.
             if not scene["room_parts"]:
@@ -361,7 +398,7 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
               ablation_methods: Sequence[str] | None = None, width: int | None = None, height: int | None = None,
               samples_per_slot: int = 2, ceiling_time_limit_s: float | None = None,
               ceiling_check_s: float | None = None, schedule=None,
-              seed: int = 0) -> ExperimentPlan:
+              seed: int = 0, utilities: Sequence[str] | None = None) -> ExperimentPlan:
     """The plan of a run; the same arguments always give the same plan (seeded window starts).
 
     Defaults (``quick``: the README's demo, <= 15 min on 2 cores at low load): one 8k-splat room
@@ -477,13 +514,23 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
         schedule = dataclasses.asdict(schedule)
     w = width if width is not None else (128 if quick else 160)
     h = height if height is not None else (96 if quick else 120)
+    chosen_utilities = tuple(utilities) if utilities is not None else (DEFAULT_UTILITY,)
+    if not chosen_utilities or len(set(chosen_utilities)) != len(chosen_utilities):
+        raise ExperimentError("utilities", "need at least one utility, each once")
+    from l3gs_opt.pipeline.utilities import UtilityNameError, get_utility
+
+    for i, u in enumerate(chosen_utilities):
+        try:
+            get_utility(u)
+        except UtilityNameError as exc:
+            raise ExperimentError("utilities", str(exc), i) from None
     plan = ExperimentPlan(scenes=scenes, variants=variants, traces=trace_specs, starts=start_points,
                           window_s=window_s, paths=tuple(path_specs), methods=tuple(chosen),
                           ablations=tuple(conds), ablation_methods=tuple(abl), variant_methods=tuple(var_methods),
                           width=int(w), height=int(h), samples_per_slot=samples_per_slot,
                           ceiling_time_limit_s=float(ceiling_time_limit_s), ceiling_check_s=float(ceiling_check_s),
                           schedule=dict(schedule), seed=seed,
-                          quick=bool(quick), notes=tuple(notes))
+                          quick=bool(quick), notes=tuple(notes), utilities=chosen_utilities)
     plan.config()   # validates width, height
     plan.tasks()    # no duplicate records
     return plan

@@ -69,7 +69,8 @@ def summarize(records: Sequence[dict]) -> dict:
     ``latency_ms`` (4), ``variants`` (5), ``ceiling`` (6), ``runs`` (counts).
     """
     sims = [r for r in records if r.get("kind") == "sim"]
-    ceilings = {(r["scene"], r["variant"], r["trace"], r["start_s"], r["path"]): r
+    # A ceiling is the optimum of one utility's values (records before utilities had names: eq1).
+    ceilings = {(r["scene"], r["variant"], r["trace"], r["start_s"], r["path"], r.get("truth_utility", "eq1")): r
                 for r in records if r.get("kind") == "ceiling"}
     main = [r for r in sims if r["role"] == "main" and r["ablation"] == "none"]
     order = list(dict.fromkeys(r["method"] for r in main))
@@ -176,7 +177,8 @@ def summarize(records: Sequence[dict]) -> dict:
     for r in sims:
         if r["ablation"] != "none" or r["role"] not in ("main", "variant"):
             continue
-        c = ceilings.get((r["scene"], r["variant"], r["trace"], r["start_s"], r["path"]))
+        c = ceilings.get((r["scene"], r["variant"], r["trace"], r["start_s"], r["path"],
+                          r.get("truth_utility", "eq1")))
         label = f"{r['method']} ({r['variant']})"
         e = ceil.setdefault(label, {"method": r["method"], "variant": r["variant"], "ssim": [], "utility": [],
                                     "ceiling": [], "gap_pct": [], "statuses": [], "violations": 0,

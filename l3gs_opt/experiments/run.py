@@ -65,7 +65,8 @@ from l3gs_opt.jsonout import dumps
 from l3gs_opt.records import RecordLog, append_record
 
 __all__ = ["run_experiments"]
-from l3gs_opt.experiments.plan import RUNS_FILE, ExperimentError, ExperimentPlan, PathSpec, SceneSpec, Task, scaled_mbps
+from l3gs_opt.experiments.plan import (RUNS_FILE, ExperimentError, ExperimentPlan, PathSpec, SceneSpec, Task, scaled_mbps,
+                                       truth_utility)
 
 
 # ---------------------------------------------------------------------------------------- running
@@ -134,13 +135,14 @@ class _Scene:
         return self._poses[spec.name]
 
 
-def _truth(sim, T: int) -> np.ndarray:
-    """``[T, J, L]`` true per-unit utilities (object view) of a Simulation run with the oracle viewport."""
+def _truth(sim, T: int, utility: str) -> np.ndarray:
+    """``[T, J, L]`` true per-unit values of ``utility`` (object view) of a Simulation run with the
+    oracle viewport."""
     cat = sim.catalog("object")
     J, L = cat.shape
     out = np.zeros((T, J, L))
     for t in range(T):
-        u = sim.prediction(t)["splat_utility"]
+        u = sim.splat_values(t, utility)
         out[t] = np.bincount(cat.unit_of_row, weights=u, minlength=J * L).reshape(J, L)
     return np.where(cat.empty[None], 0.0, out)
 
@@ -229,7 +231,8 @@ def _sim_record(task: Task, result, inst, base: dict, *, preload: bool = False) 
     recs = result.records
     rec = dict(base)
     rec.update({
-        "kind": "sim", "method": task.method, "solver": s.get("solver"), "ablation": task.ablation,
+        "kind": "sim", "method": task.label, "method_name": task.method, "utility": task.utility,
+        "solver": s.get("solver"), "ablation": task.ablation,
         "role": task.role, "view": s.get("view"), "units": s.get("units"), "representation": s.get("representation"),
         "ssim_mean": s["ssim_mean"], "ssim_per_s": [float(v) for v in s["ssim_per_s"]], "psnr_mean": s.get("psnr_mean"),
         "bytes_delivered": s["bytes_delivered"], "bytes_wasted": s["bytes_wasted"], "bytes_idle": s["bytes_idle"],
@@ -413,11 +416,12 @@ def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: 
             bandwidth, info = trace_bytes(tr.path, mbps=mbps, start=task.start_s, slots=plan.window_s)
             poses = sc.poses(paths[task.path], plan.window_s)
             bundle = sc.bundle(task.variant)
-            tkey = (task.scene, task.variant, task.path)
+            truth_name = truth_utility(task.utility)
+            tkey = (task.scene, task.variant, task.path, truth_name)
             if tkey not in truths:
                 # The true utilities depend on the bundle and the viewer only (not on the window).
                 oracle = Simulation(bundle, poses, bandwidth, config=plan.config("true_viewport"))
-                truths[tkey] = (oracle, _truth(oracle, plan.window_s))
+                truths[tkey] = (oracle, _truth(oracle, plan.window_s, truth_name))
             oracle, truth = truths[tkey]
             base = {"record_id": task.record_id, "scene": task.scene, "variant": task.variant,
                     "trace": task.trace, "trace_class": tr.klass, "start_s": task.start_s,
@@ -426,9 +430,9 @@ def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: 
                     "trace_mean_mbps_raw": info["trace_mean_mbps_raw"],
                     "window_mean_mbps": info["window_mean_mbps"], "scene_bytes": sc.scene_bytes(),
                     "bandwidth_cv": float(np.std(bandwidth) / max(float(np.mean(bandwidth)), 1e-12)),
-                    "width": plan.width, "height": plan.height}
+                    "width": plan.width, "height": plan.height, "truth_utility": truth_name}
             meta = {"experiment": "ceiling", **{k: base[k] for k in ("scene", "variant", "trace", "start_s",
-                                                                     "path", "mbps")}}
+                                                                     "path", "mbps", "truth_utility")}}
             inst = _ceiling_instance(oracle, truth, bandwidth, meta)
             if task.kind == "ceiling":
                 record = _ceiling_record(task, inst, base, plan.ceiling_time_limit_s, plan.ceiling_check_s)
@@ -440,14 +444,15 @@ def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: 
                     sim = sims[task.group] = Simulation(bundle, poses, bandwidth,
                                                         config=plan.config(task.ablation),
                                                         reference=str(sc.teacher), info=info)
-                result = sim.run(task.method)
+                result = sim.run(task.method, utility=task.utility)
                 spec = method_spec(task.method, representation=bundle.manifest["representation"],
                                    variant=task.variant)
                 record = _sim_record(task, result, inst, base, preload=spec.preload)
             records.append(record, where=task.record_id)
             written += 1
             bar.update(1)
-            bar.set_postfix_str(f"{task.variant} {task.method or 'ceiling'} {task.ablation}", refresh=False)
+            bar.set_postfix_str(f"{task.variant} {task.label if task.method else 'ceiling'} {task.ablation}",
+                                refresh=False)
             if on_record is not None:
                 on_record(record)
     finally:

@@ -33,7 +33,8 @@ from l3gs_opt.problem.instance import Instance, Options
 from l3gs_opt.traces.poses import PoseError, PoseMapping, PoseTrace, read_camera_path, read_pose_log
 from l3gs_opt.traces.predictors import predict_viewport, wrap_deg
 from l3gs_opt.traces.bandwidth import mbps_to_bytes, read_bandwidth_trace
-from l3gs_opt.pipeline.splat_utility import UtilityScene, object_layer_utility
+from l3gs_opt.pipeline.splat_utility import _labels
+from l3gs_opt.pipeline.utilities import DEFAULT_UTILITY, get_utility
 
 __all__ = ["instance_from_bundle", "bundle_costs", "viewer_cameras", "Z_UP_MAPPING"]
 
@@ -123,7 +124,7 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
                          predict: bool = False, samples_per_slot: int = 4, hw_s: float = 0.5,
                          pose_start_s: float = 0.0, mapping: PoseMapping | None = None, width: int = 800,
                          height: int = 600, fov_deg: float = 70.0, options: Options | None = None,
-                         progress: bool = False) -> Instance:
+                         progress: bool = False, utility: str = DEFAULT_UTILITY) -> Instance:
     """The instance of delivering ``bundle_path`` to a viewer on ``path`` over ``trace``.
 
     Parameters
@@ -143,6 +144,9 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
     options : Options, optional
         The instance's options, e.g. ``Options(budget="cumulative")`` for one link whose unspent
         bytes carry over (a chunk larger than one slot's bytes can then arrive).
+    utility : str
+        The splat utility (:mod:`l3gs_opt.pipeline.utilities`; default ``eq1``). A held-aware one is
+        valued with everything held (its held-free form: an instance's utilities are fixed).
     """
     from tqdm import tqdm
 
@@ -163,22 +167,30 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
     J, L = cost.shape
     # Utility rows are indexed by object id; an unsegmented scene is object 0.
     rows = np.asarray(objects, dtype=np.int64) if m["segmented"] else np.zeros(1, np.int64)
+    u = get_utility(utility)
     # Layered: one scene tagged by layer gives every dU at once; separate: one scene per version.
     if m["representation"] == "layered":
-        scenes = [(None, UtilityScene.from_scene(bundle.scene(L - 1)))]
+        scenes = [(None, bundle.scene(L - 1))]
     else:
-        scenes = [(level, UtilityScene.from_scene(bundle.level_scene(level))) for level in range(L)]
-    utility = np.zeros((slots, J, L))
-    for t in tqdm(range(slots), desc="utilities", disable=not progress):
-        for level, prep in scenes:
-            u = np.mean([object_layer_utility(prep, cam) for cam in cams[t]], axis=0)
+        scenes = [(level, bundle.level_scene(level)) for level in range(L)]
+    prepared = []
+    for level, scene in scenes:
+        obj, lay, Jc, Lc = _labels(scene)
+        bins = obj * max(Lc, 1) + lay
+        order = np.argsort(bins, kind="stable")
+        cells = np.split(order, np.cumsum(np.bincount(bins, minlength=Jc * Lc))[:-1])
+        prepared.append((level, u.prepare(scene), cells, (Jc, Lc)))
+    values = np.zeros((slots, J, L))
+    for t in tqdm(range(slots), desc=f"{u.name} utilities", disable=not progress):
+        for level, prep, cells, (Jc, Lc) in prepared:
+            got = u.chunk_values(prep, cams[t], cells).reshape(Jc, Lc)
             # Pad: an object (or top layer) without splats in this scene has no row (column).
-            full = np.zeros((max(int(rows.max()) + 1, u.shape[0]), L if level is None else 1))
-            full[:u.shape[0], :u.shape[1]] = u
+            full = np.zeros((max(int(rows.max()) + 1, Jc), L if level is None else 1))
+            full[:Jc, :min(Lc, full.shape[1])] = got[:, :full.shape[1]]
             if level is None:
-                utility[t] = full[rows]
+                values[t] = full[rows]
             else:
-                utility[t, :, level] = full[rows, 0]
+                values[t, :, level] = full[rows, 0]
     meta = {
         "generator": "l3gs_opt.pipeline.scene_instance", "bundle": str(Path(bundle_path)), "variant": m["variant"],
         "path": str(Path(path)), "viewport": "predicted (lr)" if predict else "true",
@@ -187,6 +199,7 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
         "trace": raw.name, "trace_mean_mbps_raw": float(raw.mbps.mean()), "scale_factor": factor,
         "target_mean_mbps": mbps, "window": {"start_s": start, "length_s": slots},
         "window_mean_mbps": float(window.mbps.mean()), "objects": objects, "empty_chunks": empty,
+        "utility": u.describe(),
     }
     return Instance(m["representation"], bandwidth=mbps_to_bytes(window.mbps, slot_s), cost=cost,
-                    utility=utility, slot_s=slot_s, options=options or Options(), meta=meta)
+                    utility=values, slot_s=slot_s, options=options or Options(), meta=meta)

@@ -63,12 +63,25 @@ class Client:
         self.started = time.perf_counter()
         self.renders_before = dict(sim.renders)
         self.run = sim.run_id(spec, index, clients)
-        self.writer = RecordWriter(out_dir, spec.name, spec.solver, client=index, run=self.run, resume=resume)
+        self.writer = RecordWriter(out_dir, spec.name, spec.solver, client=index, run=self.run, resume=resume,
+                                   utility=spec.utility)
         for record in self.writer.resumed:
             self._replay(record)
         self.first_slot = len(self.records)
 
     # -- one slot -----------------------------------------------------------------------------------
+    def slot_inputs(self, t: int) -> SlotInputs:
+        """What the simulation computes for this client's slot ``t``: by its utilities, given the
+        rows it shows now (held-aware utilities only)."""
+        sim, spec = self.sim, self.spec
+        held = None
+        if sim.valuation(spec.utility, spec.order_utility).held_aware:
+            rows = sim.shown_rows(self.cat, self.got, self.complete, self.order, spec.preload)[0]
+            held = np.zeros(sim.scene.num_splats, bool)
+            held[rows] = True
+        return sim.slot_inputs(t, self.cat, self.history, self.clients, utility=spec.utility,
+                               order_utility=spec.order_utility, held=held)
+
     def begin_slot(self, inputs: SlotInputs) -> None:
         """Start slot ``inputs.slot`` with what the simulation computed for it."""
         self.t = inputs.slot
@@ -138,7 +151,8 @@ class Client:
         cat, acc, t = self.cat, self.acc, self.t
         d = acc["delivery"]
         label = lambda k: list(cat.label(k))  # noqa: E731
-        record = {"method": self.spec.name, "solver": self.spec.solver, "slot": t,
+        record = {"method": self.spec.name, "solver": self.spec.solver, "utility": self.spec.utility,
+                  "order_utility": self.spec.order_utility, "slot": t,
                   "time_s": (t + 1) * self.cfg.slot_s, "ssim": None, "psnr": None, "splats_shown": None,
                   "bytes_trace": int(self.sim.link_bytes[t]), "bytes_share": acc["share"],
                   "bytes_capacity": int(acc["capacity"]), "bytes_delivered": int(acc["delivered"]),
@@ -173,7 +187,7 @@ class Client:
         metrics_s = time.perf_counter() - t3
         record.update(ssim=s, psnr=_finite_or_none(p), splats_shown=int(rows.size), render_reused=reused,
                       timings_s={"prediction": self.inputs.prediction["prediction_s"],
-                                 "utility": self.inputs.prediction["utility_s"] + acc["lookup_s"] + acc["order_s"],
+                                 "utility": acc["lookup_s"] + acc["order_s"],
                                  "scheduling": acc["schedule_s"], "rendering": render_s, "reference": reference_s,
                                  "metrics": metrics_s})
         if full is not None:
@@ -187,7 +201,7 @@ class Client:
         """Re-run a recorded slot's deliveries (no scheduling, no rendering) and check them."""
         t = len(self.records)
         cat = self.cat
-        self.begin_slot(self.sim.slot_inputs(t, cat, self.history, self.clients))
+        self.begin_slot(self.slot_inputs(t))
         parts = record.get("substep_requests", [record["requests"]])
         shares = record.get("substep_bytes", [record.get("bytes_share", record["bytes_trace"])])
         if len(parts) != self.cfg.substeps or len(shares) != len(parts):
@@ -225,7 +239,8 @@ class Client:
         renders = {k: sim.renders[k] - self.renders_before[k] for k in sim.renders}
         m = sim.bundle.manifest
         result.summary = RunSummary(
-            method=spec.name, solver=spec.solver, slots=sim.T, slot_s=cfg.slot_s,
+            method=spec.name, solver=spec.solver, utility=spec.utility, order_utility=spec.order_utility,
+            slots=sim.T, slot_s=cfg.slot_s,
             ssim_mean=float(np.mean(ssims)), ssim_per_s=tuple(ssims), psnr_per_s=tuple(psnrs),
             psnr_mean=float(np.mean([p for p in psnrs if p is not None])) if any(p is not None for p in psnrs)
             else None,
@@ -254,7 +269,7 @@ def drive(clients: Sequence[Client], bandwidth: Sequence[int], *, start: int = 0
     for t in tqdm(range(start, len(bandwidth)), desc=f"simulate {name}", unit="slot", disable=not progress,
                   initial=start, total=len(bandwidth)):
         for c in clients:
-            c.begin_slot(c.sim.slot_inputs(t, c.cat, c.history, c.clients))
+            c.begin_slot(c.slot_inputs(t))
         for total in split_bytes(int(bandwidth[t]), parts):
             ids = [c.plan() for c in clients]
             shares = max_min_shares(total, [c.demand(i) for c, i in zip(clients, ids)])

@@ -19,7 +19,7 @@ TIMING_KEYS = ("prediction", "utility", "scheduling", "rendering", "reference", 
 SH_UPGRADE_UTILITIES = ("residual", "bands")
 _VIEWPORT = ("lr", "last", "oracle")
 _BANDWIDTH = ("harmonic", "last", "oracle")
-_UTILITY = ("exact", "table")
+_UTILITY_MODES = ("exact", "table")
 
 
 class SimulationError(L3gsError, ValueError):
@@ -51,9 +51,15 @@ class SimConfig:
         Viewport predictor; ``hw_s``: its history window, seconds.
     bandwidth_predictor : {"harmonic", "last", "oracle"}
         ``bandwidth_window``: slots in the harmonic mean; ``robust``: RobustMPC's discount.
-    utility : {"exact", "table"}
-        Eq. 1 per predicted viewpoint, or a lookup in a viewpoint table
-        (:meth:`l3gs_opt.pipeline.splat_utility.UtilityTable.lookup` with its defaults).
+    utility : str
+        The splat utility that values the units (a name of
+        :func:`l3gs_opt.pipeline.utilities.utility_names`; default ``eq1``, the paper's Eq. 1).
+    utility_mode : {"exact", "table"}
+        The utility per predicted viewpoint, or a lookup in a viewpoint table of it
+        (:meth:`l3gs_opt.pipeline.splat_utility.UtilityTable.lookup` with its defaults; held-free
+        utilities only).
+    order_utility : str or None
+        The utility that orders the splats inside a unit as it streams (None: ``utility``).
     pose_start_s : float
         Pose-log time of slot 0's start, seconds.
     time_limit_s : float or None
@@ -96,7 +102,9 @@ class SimConfig:
     bandwidth_predictor: str = "harmonic"
     bandwidth_window: int = 5
     robust: bool = False
-    utility: str = "exact"
+    utility: str = "eq1"
+    utility_mode: str = "exact"
+    order_utility: str | None = None
     pose_start_s: float = 0.0
     time_limit_s: float | None = None
     horizon: int | None = None
@@ -121,9 +129,22 @@ class SimConfig:
         if self.width < 11 or self.height < 11:
             raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),
-                              ("utility", _UTILITY)):
+                              ("utility_mode", _UTILITY_MODES)):
             if getattr(self, name) not in allowed:
                 raise SimulationError(name, f"{getattr(self, name)!r} is not one of {', '.join(allowed)}")
+        from l3gs_opt.pipeline.utilities import UtilityNameError, get_utility, utility_names
+
+        for name in ("utility", "order_utility"):
+            v = getattr(self, name)
+            if v is None and name == "order_utility":
+                continue
+            if v in _UTILITY_MODES:
+                raise SimulationError(name, f"{v!r} is a utility mode: use utility_mode={v!r} (utility names a splat "
+                                            f"utility: {', '.join(utility_names())})")
+            try:
+                get_utility(v)
+            except UtilityNameError as exc:
+                raise SimulationError(name, str(exc)) from None
         if self.time_limit_s is not None:
             positive("time_limit_s")
         if self.horizon is not None:

@@ -28,7 +28,9 @@ class MethodSpec:
     ``view``: ``object``, ``scene``, ``distill`` or ``hierarchy`` units (see
     :mod:`l3gs_opt.simulator.catalog`; the last two give the scheduler an :class:`ItemSlotView`);
     ``order``: ``utility`` (a chunk's splats in descending predicted utility) or ``bundle``
-    (stored order); ``preload``: start with the largest model.
+    (stored order); ``preload``: start with the largest model; ``utility`` / ``order_utility``:
+    the splat utilities that value units and order splats (None: the simulation's config decides,
+    see :meth:`~l3gs_opt.simulator.simulation.Simulation.spec`).
     """
 
     name: str
@@ -37,6 +39,8 @@ class MethodSpec:
     order: str
     scheduler: Any
     preload: bool = False
+    utility: str | None = None
+    order_utility: str | None = None
 
 
 def _is_slot_solver(name: str) -> bool:

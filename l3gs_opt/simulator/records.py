@@ -1,7 +1,7 @@
 """Per-slot records of a simulation on disk: appended as they finish, and read back to resume a run.
 
 ``OUT/slots.jsonl`` holds one JSON line per slot and ``OUT/summary.jsonl`` one per finished run,
-each tagged with ``method``, ``solver`` (and ``client`` in shared-link runs) and the run's
+each tagged with ``method``, ``solver``, ``utility`` (and ``client`` in shared-link runs) and the run's
 ``run_id``, a digest of everything that decides the run (bundle, poses, trace bytes, reference,
 config, method). A re-run of the same method replaces that method's lines and keeps the others;
 a resumed run keeps its slots ``0..t-1`` (the longest run of consecutive slots with its run id)
@@ -34,8 +34,9 @@ def run_id(parts: dict) -> str:
 
 
 def _key(record: dict) -> tuple:
-    """``(method, solver, client)`` of a record."""
-    return record.get("method"), record.get("solver"), record.get("client")
+    """``(method, solver, client, utility)`` of a record (records written before utilities had
+    names were all ``eq1``)."""
+    return record.get("method"), record.get("solver"), record.get("client"), record.get("utility", "eq1")
 
 
 class RecordWriter:
@@ -52,7 +53,7 @@ class RecordWriter:
     ----------
     out_dir : path or None
         None: write nothing (and resume nothing).
-    method, solver, client : the run's key (``client``: None for a single-client run)
+    method, solver, client, utility : the run's key (``client``: None for a single-client run)
     run : str
         The run's :func:`run_id`.
     resume : bool
@@ -69,13 +70,13 @@ class RecordWriter:
     """
 
     def __init__(self, out_dir, method: str, solver: str | None, *, client: int | None = None, run: str = "",
-                 resume: bool = False):
+                 resume: bool = False, utility: str = "eq1"):
         self.dir = None if out_dir is None else Path(out_dir)
         self.resumed: list[dict] = []
         self._owner: OutputLock | None = None
         if self.dir is None:
             return
-        self.key = (method, solver, client)
+        self.key = (method, solver, client, utility)
         slots = self.dir / SLOTS_FILE
         prepare_path(slots)
         name = re.sub(r"[^A-Za-z0-9._-]+", "_", "-".join(str(k) for k in self.key))
@@ -89,7 +90,7 @@ class RecordWriter:
             raise
 
     def _start(self, slots: Path, run: str, resume: bool) -> None:
-        method, solver, _ = self.key
+        method, solver, _, _ = self.key
         with self._file_lock(SLOTS_FILE):
             repair_torn_tail(slots)
             records = read_records(slots)
@@ -155,6 +156,8 @@ class RunSummary:
 
     method: str
     solver: str | None
+    utility: str | None
+    order_utility: str | None
     slots: int
     slot_s: float
     ssim_mean: float

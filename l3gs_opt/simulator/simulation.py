@@ -10,9 +10,12 @@ Each slot ``t`` (``slot_s`` seconds, 1 s by default):
    ``harmonic`` mean of the last ``bandwidth_window`` slots, optionally ``robust``; ``last``;
    ``oracle``), times ``bandwidth_bias``. Slot 0 has no history: the client knows the
    throughput of its manifest fetch, modelled as slot 0's own bytes.
-2. **Utility.** Eq. 1 (:mod:`l3gs_opt.pipeline.splat_utility`) of every splat, averaged over the predicted
-   viewpoints (``utility="exact"``), or per (object, layer) from a precomputed viewpoint table
-   (``utility="table"``), summed per deliverable unit.
+2. **Utility.** A named splat utility (:mod:`l3gs_opt.pipeline.utilities`: ``eq1``, the paper's
+   Eq. 1, by default; ``visibility``, ``visibility-held``, ``coverage``, ``counterfactual`` or a
+   user's) of every splat, averaged over the predicted viewpoints (``utility_mode="exact"``), or
+   per (object, layer) from a precomputed viewpoint table (``utility_mode="table"``), summed per
+   deliverable unit (:mod:`l3gs_opt.simulator.valuation`). Each run may name its own utility and,
+   separately, the one that orders the splats inside a unit.
 3. **Schedule.** The method's :class:`Scheduler` gets a :class:`SlotView` (predicted utilities
    and bytes, what is held and in flight; an :class:`ItemSlotView` for the item-form methods)
    and returns an ordered list of units to request. The simulator decides nothing itself; it
@@ -113,6 +116,7 @@ from l3gs_opt.simulator.catalog import Catalog, _base_scene, build_catalog, comp
 from l3gs_opt.simulator.config import TIMING_KEYS, SimConfig, SimulationError, SlotInputs
 from l3gs_opt.simulator.methods import ITEM_SOLVERS, SIM_METHODS, SLOT_SOLVERS, MethodSpec, method_spec
 from l3gs_opt.simulator.records import SimulationResult, run_id
+from l3gs_opt.simulator.valuation import Valuation
 from l3gs_opt.simulator.schedulers import (FixedOrderScheduler, HorizonScheduler, ItemSlotView, PreloadScheduler, Scheduler,
                              SlotSolverScheduler, SlotView, order_requests)
 
@@ -158,8 +162,9 @@ class Simulation:
     mapping : PoseMapping, optional
         Head pose -> camera (default: :data:`l3gs_opt.pipeline.scene_instance.Z_UP_MAPPING`, z-up scenes).
     utility_tables : mapping view -> UtilityTable, optional
-        Tables for ``utility="table"``, labelled like the view's (object, level) cells; a missing
-        one is built on a 3 x 3 grid over the viewer's positions (12 yaws x 3 pitches).
+        Eq. 1 tables for ``utility_mode="table"``, labelled like the view's (object, level) cells;
+        a missing one (or one of another utility) is built on a 3 x 3 grid over the viewer's
+        positions (12 yaws x 3 pitches).
     info : mapping, optional
         Free-form provenance copied into every summary (e.g. the trace window).
     cache_dir : path, optional
@@ -180,8 +185,6 @@ class Simulation:
         from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
         from l3gs_opt.scene.splats import SplatScene, read_ply
         from l3gs_opt.simulator.render import REFERENCE_CACHE, VIEW_CACHE, RenderCache, render_backend
-        from l3gs_opt.pipeline.splat_utility import UtilityScene
-
         if not isinstance(config, SimConfig):
             raise SimulationError("config", f"{type(config).__name__} is not a SimConfig")
         self.config = config
@@ -200,9 +203,14 @@ class Simulation:
         self.info = dict(info or {})
         self._base = _base_scene(self.bundle)
         self.scene = self._base[0]
-        self._prep = UtilityScene.from_scene(self.scene)
         self._catalogs: dict[str, Catalog] = {}
-        self._tables = dict(utility_tables or {})
+        #: Eq. 1 tables given by the caller (by view), and every table built or taken (by (utility, view)).
+        self.given_tables = dict(utility_tables or {})
+        self.tables: dict[tuple[str, str], Any] = {}
+        #: Per-splat values of held-free utilities, by (slot, utility name); prepared scenes by utility name.
+        self.values_cache: dict[tuple[int, str], np.ndarray] = {}
+        self._prepared: dict[str, Any] = {}
+        self._valuations: dict[tuple[str, str], Valuation] = {}
         if isinstance(reference, (str, os.PathLike)):
             self.reference_label = f"teacher:{reference}"
             reference = read_ply(reference)
@@ -230,7 +238,8 @@ class Simulation:
             self._catalogs[view] = build_catalog(self.bundle, view, base=self._base)
         return self._catalogs[view]
 
-    def _cameras(self, poses: np.ndarray) -> list:
+    def cameras_of(self, poses: np.ndarray) -> list:
+        """Cameras (the config's intrinsics) of head poses ``[n, 6]`` (position, yaw/pitch/roll)."""
         from l3gs_opt.scene.cameras import Camera
         from l3gs_opt.traces.predictors import wrap_deg
 
@@ -256,12 +265,11 @@ class Simulation:
         return int(math.floor(value * cfg.bandwidth_bias))
 
     def prediction(self, t: int) -> dict:
-        """Slot ``t``'s predicted cameras, bytes and (exact mode) per-splat utility, cached."""
+        """Slot ``t``'s predicted cameras and bytes, cached."""
         if t in self._pred:
             return self._pred[t]
         from l3gs_opt.traces.predictors import predict_viewport
         from l3gs_opt.pipeline.scene_instance import _pose_at, _predicted_poses
-        from l3gs_opt.pipeline.splat_utility import splat_utility
 
         cfg = self.config
         t0 = time.perf_counter()
@@ -275,22 +283,35 @@ class Simulation:
             past = self.poses.features[self.poses.time_s < start]
             last = past[-1:] if len(past) else self.poses.features[:1]
             poses = predict_viewport(last, len(times), method="last")
-        cams = self._cameras(poses)
+        cams = self.cameras_of(poses)
         predicted = self._predicted_bytes(t)
-        t1 = time.perf_counter()
-        u = None
-        if cfg.utility == "exact":
-            u = np.mean([splat_utility(self._prep, c) for c in cams], axis=0)
-        t2 = time.perf_counter()
-        self._pred[t] = {"cameras": cams, "predicted_bytes": predicted, "splat_utility": u,
-                         "prediction_s": t1 - t0, "utility_s": t2 - t1}
+        self._pred[t] = {"cameras": cams, "predicted_bytes": predicted, "prediction_s": time.perf_counter() - t0}
         return self._pred[t]
+
+    def prepared(self, utility: Any) -> Any:
+        """``utility.prepare(scene)``, once per utility name."""
+        if utility.name not in self._prepared:
+            self._prepared[utility.name] = utility.prepare(self.scene)
+        return self._prepared[utility.name]
+
+    def valuation(self, utility: str | None = None, order_utility: str | None = None) -> Valuation:
+        """The :class:`Valuation` of a (utility, order utility) pair (default: the config's)."""
+        utility = utility or self.config.utility
+        order = order_utility or self.config.order_utility or utility
+        if (utility, order) not in self._valuations:
+            self._valuations[(utility, order)] = Valuation(self, utility, order)
+        return self._valuations[(utility, order)]
+
+    def splat_values(self, t: int, utility: str | None = None, held: np.ndarray | None = None) -> np.ndarray:
+        """Per-splat values of ``utility`` (default the config's) over slot ``t``'s predicted viewpoints."""
+        val = self.valuation(utility)
+        return val.splat_values(val.utility, t, held)
 
     def true_camera(self, t: int):
         from l3gs_opt.pipeline.scene_instance import _pose_at
 
         end = self.config.pose_start_s + (t + 1) * self.config.slot_s
-        return self._cameras(_pose_at(self.poses, np.array([end])))[0]
+        return self.cameras_of(_pose_at(self.poses, np.array([end])))[0]
 
     # -- rendering ------------------------------------------------------------------------
     def _render(self, scene, camera) -> np.ndarray:
@@ -375,93 +396,37 @@ class Simulation:
         return image, False
 
     # -- utilities ------------------------------------------------------------------------
-    def _table(self, cat: Catalog):
-        # distill and hierarchy units sit on the object view's (object, level) cells
-        name = "object" if cat.view in ("distill", "hierarchy") else cat.view
-        if name in self._tables:
-            return self._tables[name]
-        from l3gs_opt.pipeline.splat_utility import build_utility_table
-
-        J, L = cat.shape
-        j_of = cat.unit_of_row // L
-        labelled = dataclasses.replace(self.scene, object_ids=j_of.astype(np.int32),
-                                       layers=(cat.unit_of_row % L).astype(np.int32))
-        centres = np.array([c.center for c in self._cameras(self.poses.features)])
-        lo, hi = centres.min(axis=0), centres.max(axis=0)
-        up = int(np.argmin(hi - lo))   # the axis the viewer moves least along: its height
-        axes = [a for a in range(3) if a != up]
-        grid = []
-        for a in np.linspace(lo[axes[0]], hi[axes[0]], 3):
-            for b in np.linspace(lo[axes[1]], hi[axes[1]], 3):
-                p = np.empty(3)
-                p[axes[0]], p[axes[1]], p[up] = a, b, centres[:, up].mean()
-                grid.append(p)
-        table = build_utility_table(labelled, np.array(grid), yaw_steps=12, pitches_deg=(-20.0, 0.0, 20.0),
-                                    up_axis=up, width=self.config.width, height=self.config.height,
-                                    fov_deg=self.config.fov_deg)
-        self._tables[name] = table
-        return table
-
-    def _unit_utility(self, cat: Catalog, pred: dict) -> tuple[np.ndarray, float]:
-        """Predicted utility per unit (shape ``cat.grid``) and the seconds spent (table lookups and
-        the distill split only)."""
-        J, L = cat.shape
-        t0 = time.perf_counter()
-        u = pred["splat_utility"]
-        if u is not None:
-            cells = np.bincount(cat.unit_of_row, weights=u, minlength=J * L).reshape(J, L)
-        else:
-            got = np.mean([self._table(cat).lookup(c) for c in pred["cameras"]], axis=0)
-            cells = np.zeros((J, L))
-            cells[:got.shape[0], :got.shape[1]] = got[:J, :L]
-        if len(cat.forms) == 1:
-            return cells, (0.0 if u is not None else time.perf_counter() - t0)
-        f = self.distill_arrays()[1]
-        if u is not None:
-            upgrade = np.bincount(cat.unit_of_row, weights=u * f, minlength=J * L).reshape(J, L)
-        else:   # no per-splat utility: each cell's mean share
-            n = np.bincount(cat.unit_of_row, minlength=J * L)
-            share = np.bincount(cat.unit_of_row, weights=f, minlength=J * L) / np.maximum(n, 1)
-            upgrade = cells * share.reshape(J, L)
-        out = np.stack([np.clip(cells - upgrade, 0.0, None), upgrade], axis=-1)
-        return out, time.perf_counter() - t0
-
-    def slot_inputs(self, t: int, cat: Catalog, history: Sequence[int], clients: int = 1) -> SlotInputs:
+    def slot_inputs(self, t: int, cat: Catalog, history: Sequence[int], clients: int = 1, *,
+                    utility: str | None = None, order_utility: str | None = None,
+                    held: np.ndarray | None = None) -> SlotInputs:
         """Slot ``t``'s inputs for a client on ``cat`` whose earlier slots delivered ``history``
-        (bytes per slot), one of ``clients`` on the link: what it is handed, rather than asking."""
+        (bytes per slot), one of ``clients`` on the link, valued by ``utility`` (splats ordered by
+        ``order_utility``; defaults: the config's) given the rows it holds (``held``, a mask over
+        :attr:`scene`; used by held-aware utilities): what it is handed, rather than asking."""
         pred = self.prediction(t)
-        unit_utility, lookup_s = self._unit_utility(cat, pred)
-        return SlotInputs(slot=t, prediction=pred, unit_utility=unit_utility, lookup_s=lookup_s,
+        val = self.valuation(utility, order_utility)
+        unit_utility, utility_s = val.unit_values(t, cat, held)
+        return SlotInputs(slot=t, prediction=pred, unit_utility=unit_utility, lookup_s=utility_s,
                           predicted_bytes=self._predicted_bytes(t, history, clients),
-                          splat_order=lambda k: self._splat_order(cat, k, pred))
-
-    def _splat_order(self, cat: Catalog, k: int, pred: dict) -> np.ndarray:
-        """Rows of unit ``k`` in descending predicted utility of its form (stable: ties keep the
-        bundle's order)."""
-        rows = cat.rows[k]
-        u = pred["splat_utility"]
-        if u is None:   # table mode: Eq. 1 of this chunk's splats only
-            from l3gs_opt.pipeline.splat_utility import splat_utility
-
-            sub = self.scene.subset(rows)
-            u_rows = np.mean([splat_utility(sub, c) for c in pred["cameras"]], axis=0)
-        else:
-            u_rows = u[rows]
-        if len(cat.forms) > 1:
-            f = self.distill_arrays()[1][rows]
-            u_rows = u_rows * (f if k % len(cat.forms) == 1 else 1.0 - f)
-        return rows[np.argsort(-u_rows, kind="stable")]
+                          splat_order=lambda k: val.splat_order(t, cat, k, held))
 
     # -- one method ----------------------------------------------------------------------
-    def spec(self, method: "str | MethodSpec", solver: str | None = None) -> MethodSpec:
-        """The :class:`MethodSpec` of ``method`` for this bundle and config."""
+    def spec(self, method: "str | MethodSpec", solver: str | None = None, *, utility: str | None = None,
+             order_utility: str | None = None) -> MethodSpec:
+        """The :class:`MethodSpec` of ``method`` for this bundle and config, with its utilities
+        (``utility`` and ``order_utility``; defaults: the spec's own, then the config's)."""
         if isinstance(method, MethodSpec):
             if solver is not None:
                 raise SimulationError("solver", "give it in the MethodSpec")
-            return method
-        m = self.bundle.manifest
-        return method_spec(method, solver=solver, representation=m["representation"], variant=m["variant"],
-                           config=self.config)
+            spec = method
+        else:
+            m = self.bundle.manifest
+            spec = method_spec(method, solver=solver, representation=m["representation"], variant=m["variant"],
+                               config=self.config)
+        utility = utility or spec.utility or self.config.utility
+        order = order_utility or spec.order_utility or self.config.order_utility or utility
+        self.valuation(utility, order)   # checks both names now
+        return dataclasses.replace(spec, utility=utility, order_utility=order)
 
     def run_id(self, spec: MethodSpec, client: int | None = None, clients: int = 1) -> str:
         """Digest of everything that decides a run of ``spec`` (see :mod:`l3gs_opt.simulator.records`)."""
@@ -473,9 +438,11 @@ class Simulation:
                        "mapping": repr(self.mapping), "bandwidth": self.link_bytes, "reference": self.reference_label,
                        "config": dataclasses.asdict(self.config), "method": spec.name, "solver": spec.solver,
                        "view": spec.view, "order": spec.order, "preload": spec.preload,
-                       "scheduler": type(spec.scheduler).__name__, "client": client, "clients": clients})
+                       "scheduler": type(spec.scheduler).__name__, "client": client, "clients": clients,
+                       "utility": spec.utility, "order_utility": spec.order_utility})
 
-    def run(self, method: "str | MethodSpec", *, solver: str | None = None, out_dir: str | os.PathLike | None = None,
+    def run(self, method: "str | MethodSpec", *, solver: str | None = None, utility: str | None = None,
+            order_utility: str | None = None, out_dir: str | os.PathLike | None = None,
             progress: bool = False, resume: bool = False) -> SimulationResult:
         """Simulate ``method`` over every slot (see the module docstring).
 
@@ -487,6 +454,10 @@ class Simulation:
         solver : str, optional
             The solver of ``l3gs``, ``l3gs-noseg``, ``separate`` (a single-slot solver, default
             ``bb``), ``distill`` and ``hierarchy`` (one of :data:`ITEM_SOLVERS`, default ``bb``).
+        utility, order_utility : str, optional
+            The splat utility that values units, and the one that orders splats inside a unit
+            (:func:`l3gs_opt.pipeline.utilities.utility_names`; defaults ``config.utility``, then
+            ``config.order_utility`` or ``utility``). Both are part of the run's identity.
         out_dir : path, optional
             Append one JSON line per slot to ``OUT/slots.jsonl`` as it finishes, and the summary
             to ``OUT/summary.jsonl``; earlier lines of the same method and solver are replaced.
@@ -510,7 +481,8 @@ class Simulation:
 
         if resume and out_dir is None:
             raise SimulationError("resume", "needs out_dir (the folder with slots.jsonl)")
-        client = Client(self, self.spec(method, solver), out_dir=out_dir, resume=resume)
+        client = Client(self, self.spec(method, solver, utility=utility, order_utility=order_utility),
+                        out_dir=out_dir, resume=resume)
         drive([client], self.link_bytes, start=client.first_slot, progress=progress)
         return client.finish()
 
@@ -573,7 +545,8 @@ class Simulation:
 
 def simulate(bundle, poses, bandwidth_bytes: Sequence[int], method: str, *, solver: str | None = None,
              config: SimConfig = SimConfig(), reference=None, mapping=None, out_dir=None,
-             progress: bool = False, resume: bool = False, cache_dir=None) -> SimulationResult:
+             progress: bool = False, resume: bool = False, cache_dir=None,
+             utility: str | None = None) -> SimulationResult:
     """One method over one bundle, viewer and link (:class:`Simulation` + :meth:`Simulation.run`).
 
     Example
@@ -585,4 +558,4 @@ def simulate(bundle, poses, bandwidth_bytes: Sequence[int], method: str, *, solv
     """
     sim = Simulation(bundle, poses, bandwidth_bytes, config=config, reference=reference, mapping=mapping,
                      cache_dir=cache_dir)
-    return sim.run(method, solver=solver, out_dir=out_dir, progress=progress, resume=resume)
+    return sim.run(method, solver=solver, utility=utility, out_dir=out_dir, progress=progress, resume=resume)

@@ -1,0 +1,323 @@
+"""Each splat's share of the picture: its alpha-compositing weight summed over the pixels.
+
+For splat i at pixel p the renderer blends ``w_ip = alpha_ip T_ip`` of its colour, with ``T_ip``
+the transmittance left by the splats in front (see :mod:`l3gs_opt.renderer.rasterize` for the
+rules). Summed over the pixels, ``W_i = sum_p w_ip`` is the part of the picture splat i paints, in
+pixels: occlusion and opacity included, and ``sum_i w_ip + T_final(p) = 1`` at every pixel.
+:attr:`RenderOutput.weights` already returns it; :func:`splat_weights` computes only it (no
+colours, no gradient) and adds two options the renderer has no use for:
+
+* ``held``: the weights a splat would have *if it were added alone to the held splats*: the
+  transmittance in front of every splat counts the held splats only (``T_ip = prod over held k in
+  front of i of (1 - alpha_kp)``), and the early stop follows the held splats alone. With every
+  splat held this is the renderer's weight exactly (same pairs, same order, same arithmetic);
+* ``pixel_weight``: a per-pixel factor ``f_p`` (``W_i = sum_p f_p w_ip``), e.g. how far the held
+  picture is from the full one at p.
+
+Both run in one compiled pass over the renderer's sorted (splat, sub-tile) pairs when numba is
+installed, else in a per-pixel NumPy loop (slow; small scenes and tests only).
+
+For many viewpoints of one scene, prepare it once (:class:`WeightScene`: world covariances and
+opacities in float64, camera-independent) and call :func:`scene_weights`: with numba, the
+projection too is one compiled pass (the rules of :func:`~l3gs_opt.renderer.projection.project_gaussians`
+in float64), then the same pair listing and walk; the tests hold it to the float64 torch renderer.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from dataclasses import dataclass
+
+from ._kernels import HAVE_NUMBA
+from .projection import (COV2D_DILATION, JACOBIAN_CLAMP, NEAR_PLANE, TILE_SIZE, Projection,
+                         covariances_from_params, project_gaussians)
+from .rasterize import ALPHA_MAX, ALPHA_MIN, SUBTILE, T_MIN, _pairs
+
+if HAVE_NUMBA:
+    import numba
+
+__all__ = ["splat_weights", "projection_weights", "WeightScene", "scene_weights"]
+
+
+def _walk_python(sub_start, pair_splat, means2d, conics, opac, held, pix_w, width, height, sub, gsx, out):
+    """The kernel's rules, one pixel at a time (the fallback without numba)."""
+    for s in range(sub_start.shape[0] - 1):
+        p0, p1 = sub_start[s], sub_start[s + 1]
+        x0, y0 = (s % gsx) * sub, (s // gsx) * sub
+        for py in range(y0, min(y0 + sub, height)):
+            for px in range(x0, min(x0 + sub, width)):
+                T = 1.0
+                f = pix_w[py, px]
+                for p in range(p0, p1):
+                    i = pair_splat[p]
+                    dx, dy = means2d[i, 0] - (px + 0.5), means2d[i, 1] - (py + 0.5)
+                    power = -0.5 * (conics[i, 0] * dx * dx + conics[i, 2] * dy * dy) - conics[i, 1] * dx * dy
+                    if power > 0.0:
+                        continue
+                    a = min(ALPHA_MAX, opac[i] * np.exp(power))
+                    if a < ALPHA_MIN:
+                        continue
+                    test_t = T * (1.0 - a)
+                    if held[i]:
+                        if test_t < T_MIN:
+                            break
+                        out[i] += f * a * T
+                        T = test_t
+                    else:
+                        out[i] += f * a * T
+
+
+if HAVE_NUMBA:
+    @numba.njit(parallel=True, cache=True, fastmath=False)
+    def _walk(sub_start, pair_splat, means2d, conics, opac, held, pix_w, width, height, sub, gsx, pair_w):
+        # A splat is skipped at a pixel when o exp(power) < ALPHA_MIN, i.e. power < log(ALPHA_MIN / o):
+        # tested first without the exp, with a margin so that only pixels skipped anyway are skipped.
+        pcut = np.empty(opac.shape[0])
+        for i in range(opac.shape[0]):
+            pcut[i] = np.log(ALPHA_MIN / opac[i]) - 1e-9 if opac[i] > 0.0 else -np.inf
+        nsub = sub_start.shape[0] - 1
+        for s in numba.prange(nsub):
+            p0, p1 = sub_start[s], sub_start[s + 1]
+            if p1 == p0:
+                continue
+            x0 = (s % gsx) * sub
+            y0 = (s // gsx) * sub
+            for ly in range(sub):
+                py = y0 + ly
+                if py >= height:
+                    break
+                for lx in range(sub):
+                    px = x0 + lx
+                    if px >= width:
+                        break
+                    T = 1.0
+                    f = pix_w[py, px]
+                    cx = px + 0.5
+                    cy = py + 0.5
+                    for p in range(p0, p1):
+                        i = pair_splat[p]
+                        dx = means2d[i, 0] - cx
+                        dy = means2d[i, 1] - cy
+                        power = -0.5 * (conics[i, 0] * dx * dx + conics[i, 2] * dy * dy) - conics[i, 1] * dx * dy
+                        if power > 0.0 or power < pcut[i]:
+                            continue
+                        a = opac[i] * np.exp(power)
+                        if a > ALPHA_MAX:
+                            a = ALPHA_MAX
+                        if a < ALPHA_MIN:
+                            continue
+                        test_t = T * (1.0 - a)
+                        if held[i]:
+                            if test_t < T_MIN:
+                                break
+                            pair_w[p] += f * a * T
+                            T = test_t
+                        else:
+                            pair_w[p] += f * a * T
+
+
+def projection_weights(proj: Projection, opacities: torch.Tensor, width: int, height: int, *,
+                       held: np.ndarray | None = None, pixel_weight: np.ndarray | None = None,
+                       compiled: bool | None = None) -> np.ndarray:
+    """:func:`splat_weights` from a projection already made (float64 [N], pixels).
+
+    ``compiled``: the numba kernel (default when numba is installed) or the Python loop.
+    """
+    n = proj.means2d.shape[0]
+    held_a = np.ones(n, dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
+    if held_a.shape != (n,):
+        raise ValueError(f"held: shape {held_a.shape}, expected ({n},)")
+    pix = np.ones((height, width)) if pixel_weight is None else np.ascontiguousarray(pixel_weight, np.float64)
+    if pix.shape != (height, width):
+        raise ValueError(f"pixel_weight: shape {pix.shape}, expected ({height}, {width})")
+    splat, key = _pairs(proj.means2d, proj.conics, opacities, proj.depths, proj.radii, width, height, SUBTILE)
+    sub = SUBTILE
+    gsx, gsy = (width + sub - 1) // sub, (height + sub - 1) // sub
+    counts = np.bincount(key.numpy(), minlength=gsx * gsy)
+    sub_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    pair_splat = splat.numpy().astype(np.int64)
+    f64 = lambda t: np.ascontiguousarray(t.detach().cpu().to(torch.float64).numpy())  # noqa: E731
+    args = (f64(proj.means2d), f64(proj.conics), f64(opacities), held_a, pix, width, height, sub, gsx)
+    if compiled is None:
+        compiled = HAVE_NUMBA
+    if compiled:
+        if not HAVE_NUMBA:
+            raise ValueError("compiled: needs the numba package")
+        pair_w = np.zeros(pair_splat.shape[0])
+        _walk(sub_start, pair_splat, *args, pair_w)
+        return np.bincount(pair_splat, weights=pair_w, minlength=n)
+    out = np.zeros(n)
+    _walk_python(sub_start, pair_splat, *args, out)
+    return out
+
+
+def splat_weights(scene, camera, *, held: np.ndarray | None = None, pixel_weight: np.ndarray | None = None,
+                  compiled: bool | None = None) -> np.ndarray:
+    """Each splat's blending weight summed over the pixels of ``camera``'s picture (float64 [N],
+    pixels; 0 when culled).
+
+    Parameters
+    ----------
+    scene : SplatScene
+    camera : Camera
+        Its width and height set the picture the weights are counted on.
+    held : bool array [N], optional
+        Splats the viewer holds; the others are valued as if each were added alone (see the
+        module doc). Default: all held (the renderer's weights).
+    pixel_weight : float array [H, W], optional
+        Per-pixel factor (default 1).
+    """
+    with torch.no_grad():
+        means = torch.tensor(np.asarray(scene.means), dtype=torch.float32)
+        covars = covariances_from_params(torch.tensor(np.asarray(scene.log_scales), dtype=torch.float32),
+                                         torch.tensor(np.asarray(scene.quats), dtype=torch.float32))
+        proj = project_gaussians(means, covars, camera)
+        opac = torch.sigmoid(torch.tensor(np.asarray(scene.opacity_logits), dtype=torch.float32))
+    return projection_weights(proj, opac, camera.width, camera.height, held=held, pixel_weight=pixel_weight,
+                              compiled=compiled)
+
+
+@dataclass(frozen=True)
+class WeightScene:
+    """A scene prepared for :func:`scene_weights` (camera-independent, float64).
+
+    ``means [N, 3]`` (world units), ``cov6 [N, 6]`` world covariances ``(xx, xy, xz, yy, yz, zz)``
+    (world units squared, from :func:`covariances_from_params` in float64), ``opacity [N]``
+    (activated).
+    """
+
+    means: np.ndarray
+    cov6: np.ndarray
+    opacity: np.ndarray
+
+    @classmethod
+    def from_scene(cls, scene) -> "WeightScene":
+        with torch.no_grad():
+            cov = covariances_from_params(torch.tensor(np.asarray(scene.log_scales), dtype=torch.float64),
+                                          torch.tensor(np.asarray(scene.quats), dtype=torch.float64))
+            opac = torch.sigmoid(torch.tensor(np.asarray(scene.opacity_logits), dtype=torch.float64))
+        cov6 = np.ascontiguousarray(cov.reshape(-1, 9)[:, [0, 1, 2, 4, 5, 8]].numpy())
+        return cls(np.ascontiguousarray(np.asarray(scene.means, dtype=np.float64)), cov6, opac.numpy())
+
+    @property
+    def num_splats(self) -> int:
+        return int(self.means.shape[0])
+
+
+if HAVE_NUMBA:
+    @numba.njit(parallel=True, cache=True, fastmath=False)
+    def _project(means, cov6, rot, trans, fx, fy, cx, cy, lim_x, lim_y, width, height, sub,
+                 means2d, conics, depths, rect):
+        """project_gaussians + tile_rects in float64; ``rect[i]`` = sub-tile range (x0, x1, y0, y1),
+        empty (all 0) when culled."""
+        gx = (width + TILE_SIZE - 1) // TILE_SIZE
+        gy = (height + TILE_SIZE - 1) // TILE_SIZE
+        gsx = (width + sub - 1) // sub
+        gsy = (height + sub - 1) // sub
+        f = TILE_SIZE // sub
+        for i in numba.prange(means.shape[0]):
+            mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
+            x = rot[0, 0] * mx + rot[0, 1] * my + rot[0, 2] * mz + trans[0]
+            y = rot[1, 0] * mx + rot[1, 1] * my + rot[1, 2] * mz + trans[1]
+            z = rot[2, 0] * mx + rot[2, 1] * my + rot[2, 2] * mz + trans[2]
+            depths[i] = z
+            rect[i, 0] = 0
+            rect[i, 1] = 0
+            rect[i, 2] = 0
+            rect[i, 3] = 0
+            if not z >= NEAR_PLANE:
+                continue
+            tx = min(max(x / z, -lim_x), lim_x) * z
+            ty = min(max(y / z, -lim_y), lim_y) * z
+            j00 = fx / z
+            j02 = -fx * tx / (z * z)
+            j11 = fy / z
+            j12 = -fy * ty / (z * z)
+            t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
+            t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
+            t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
+            t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
+            t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
+            t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
+            sxx, sxy, sxz, syy, syz, szz = cov6[i, 0], cov6[i, 1], cov6[i, 2], cov6[i, 3], cov6[i, 4], cov6[i, 5]
+            u0 = t00 * sxx + t01 * sxy + t02 * sxz
+            u1 = t00 * sxy + t01 * syy + t02 * syz
+            u2 = t00 * sxz + t01 * syz + t02 * szz
+            v0 = t10 * sxx + t11 * sxy + t12 * sxz
+            v1 = t10 * sxy + t11 * syy + t12 * syz
+            v2 = t10 * sxz + t11 * syz + t12 * szz
+            a = u0 * t00 + u1 * t01 + u2 * t02 + COV2D_DILATION
+            b = u0 * t10 + u1 * t11 + u2 * t12
+            c = v0 * t10 + v1 * t11 + v2 * t12 + COV2D_DILATION
+            det = a * c - b * b
+            if not det > 0.0:
+                continue
+            px = fx * x / z + cx
+            py = fy * y / z + cy
+            means2d[i, 0] = px
+            means2d[i, 1] = py
+            conics[i, 0] = c / det
+            conics[i, 1] = -b / det
+            conics[i, 2] = a / det
+            mid = 0.5 * (a + c)
+            lam1 = mid + np.sqrt(max(mid * mid - det, 0.1))
+            r = np.ceil(3.0 * np.sqrt(max(lam1, 0.0)))
+            if not (r > 0.0 and r < np.inf):
+                continue
+            p0 = px - 0.5
+            p1 = py - 0.5
+            x0 = min(max(np.floor((p0 - r) / TILE_SIZE), 0.0), gx)
+            x1 = min(max(np.floor((p0 + r + TILE_SIZE - 1) / TILE_SIZE), 0.0), gx)
+            y0 = min(max(np.floor((p1 - r) / TILE_SIZE), 0.0), gy)
+            y1 = min(max(np.floor((p1 + r + TILE_SIZE - 1) / TILE_SIZE), 0.0), gy)
+            if x1 > x0 and y1 > y0:
+                rect[i, 0] = min(int(x0) * f, gsx)
+                rect[i, 1] = min(int(x1) * f, gsx)
+                rect[i, 2] = min(int(y0) * f, gsy)
+                rect[i, 3] = min(int(y1) * f, gsy)
+
+
+def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
+                  pixel_weight: np.ndarray | None = None) -> np.ndarray:
+    """:func:`splat_weights` of a prepared scene (float64 [N], pixels). With numba: compiled
+    projection, pair listing and walk, all float64; without it, the torch projection in float64
+    and the Python walk."""
+    n, width, height = prep.num_splats, int(camera.width), int(camera.height)
+    held_a = np.ones(n, dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
+    if held_a.shape != (n,):
+        raise ValueError(f"held: shape {held_a.shape}, expected ({n},)")
+    if not HAVE_NUMBA:
+        with torch.no_grad():
+            c = torch.from_numpy(prep.cov6)
+            covars = torch.stack([c[:, 0], c[:, 1], c[:, 2], c[:, 1], c[:, 3], c[:, 4], c[:, 2], c[:, 4], c[:, 5]],
+                                 dim=-1).reshape(-1, 3, 3)
+            proj = project_gaussians(torch.from_numpy(prep.means), covars, camera)
+        return projection_weights(proj, torch.from_numpy(prep.opacity), width, height, held=held_a,
+                                  pixel_weight=pixel_weight, compiled=False)
+    from ._kernels import list_pairs
+
+    pix = np.ones((height, width)) if pixel_weight is None else np.ascontiguousarray(pixel_weight, np.float64)
+    if pix.shape != (height, width):
+        raise ValueError(f"pixel_weight: shape {pix.shape}, expected ({height}, {width})")
+    w2c = np.asarray(camera.world_to_camera, dtype=np.float64)
+    tan_x, tan_y = camera.tan_half_fov
+    sub = SUBTILE
+    gsx, gsy = (width + sub - 1) // sub, (height + sub - 1) // sub
+    means2d, conics = np.zeros((n, 2)), np.zeros((n, 3))
+    depths, rect = np.zeros(n), np.zeros((n, 4), np.int64)
+    _project(prep.means, prep.cov6, np.ascontiguousarray(w2c[:3, :3]), np.ascontiguousarray(w2c[:3, 3]),
+             float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), JACOBIAN_CLAMP * tan_x,
+             JACOBIAN_CLAMP * tan_y, width, height, sub, means2d, conics, depths, rect)
+    vis = np.flatnonzero((rect[:, 1] > rect[:, 0]) & (rect[:, 3] > rect[:, 2]))
+    order = vis[np.argsort(depths[vis], kind="stable")]
+    r = rect[order]
+    pair_splat, key = list_pairs(order, means2d, conics, prep.opacity, np.ascontiguousarray(r[:, 0]),
+                                 np.ascontiguousarray(r[:, 1]), np.ascontiguousarray(r[:, 2]),
+                                 np.ascontiguousarray(r[:, 3]), width, height, sub, gsx, gsx * gsy,
+                                 ALPHA_MIN * (1.0 - 1e-4))
+    sub_start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=gsx * gsy))]).astype(np.int64)
+    pair_w = np.zeros(pair_splat.shape[0])
+    _walk(sub_start, pair_splat, means2d, conics, prep.opacity, held_a, pix, width, height, sub, gsx, pair_w)
+    return np.bincount(pair_splat, weights=pair_w, minlength=n)
