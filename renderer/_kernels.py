@@ -25,6 +25,10 @@ except ImportError:  # pragma: no cover - exercised when numba is absent
 
 __all__ = ["HAVE_NUMBA", "composite_forward"]
 
+#: Candidate (splat, sub-tile) cells up to which the pair listing culls in one pass over a buffer of
+#: all of them (8 bytes each: 128 MB); above, it counts first and stores the survivors only.
+SINGLE_PASS_CELLS = 1 << 24
+
 if HAVE_NUMBA:
     @numba.njit(inline="always")
     def _falloff(means2d, conics, i, cx, cy):
@@ -237,33 +241,47 @@ if HAVE_NUMBA:
     def _pairs_kernel(order, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx, nsub,
                       alpha_cut):
         """(splat, sub-tile) pairs surviving the exact alpha cull, stably bucketed by sub-tile: the
-        cull in parallel over splats (count, then write at the counts' offsets), the bucketing
-        sequential in depth order."""
+        cull in parallel over splats, the bucketing sequential in depth order. When the candidate
+        sub-tiles fit in ``SINGLE_PASS_CELLS`` the cull writes each splat's survivors into its
+        slice of a buffer of all candidates (one pass); else it counts first and writes at the
+        counts' offsets (two passes, memory of the survivors only)."""
         n = order.shape[0]
-        count = np.zeros(n + 1, np.int64)
-        none = np.zeros(0, np.int64)
-        for j in numba.prange(n):
-            count[j + 1] = _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx,
-                                  alpha_cut, none, -1)
+        cap = np.zeros(n + 1, np.int64)
         for j in range(n):
-            count[j + 1] += count[j]
-        total = count[n]
-        cell = np.empty(total, np.int64)
-        for j in numba.prange(n):
-            if count[j + 1] > count[j]:
-                _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx, alpha_cut,
-                       cell, count[j])
+            cap[j + 1] = cap[j] + max(sx1[j] - sx0[j], 0) * max(sy1[j] - sy0[j], 0)
+        count = np.zeros(n + 1, np.int64)   # count[j + 1]: survivors of splat j, then prefix sums
+        if cap[n] <= SINGLE_PASS_CELLS:
+            cell = np.empty(cap[n], np.int64)
+            for j in numba.prange(n):
+                count[j + 1] = _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub,
+                                      gsx, alpha_cut, cell, cap[j])
+            start = cap
+        else:
+            none = np.zeros(0, np.int64)
+            for j in numba.prange(n):
+                count[j + 1] = _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub,
+                                      gsx, alpha_cut, none, -1)
+            start = np.zeros(n + 1, np.int64)
+            for j in range(n):
+                start[j + 1] = start[j] + count[j + 1]
+            cell = np.empty(start[n], np.int64)
+            for j in numba.prange(n):
+                if count[j + 1] > 0:
+                    _cells(order[j], j, means2d, conics, opac, sx0, sx1, sy0, sy1, width, height, sub, gsx,
+                           alpha_cut, cell, start[j])
         bucket = np.zeros(nsub + 1, np.int64)
-        for p in range(total):
-            bucket[cell[p] + 1] += 1
+        for j in range(n):
+            for p in range(start[j], start[j] + count[j + 1]):
+                bucket[cell[p] + 1] += 1
         for s in range(nsub):
             bucket[s + 1] += bucket[s]
+        total = bucket[nsub]
         out_splat = np.empty(total, np.int64)
         out_key = np.empty(total, np.int64)
         fill = bucket[:nsub].copy()
         for j in range(n):
             i = order[j]
-            for p in range(count[j], count[j + 1]):
+            for p in range(start[j], start[j] + count[j + 1]):
                 s = cell[p]
                 out_splat[fill[s]] = i
                 out_key[fill[s]] = s

@@ -41,6 +41,15 @@ if HAVE_NUMBA:
 __all__ = ["splat_weights", "projection_weights", "WeightScene", "scene_weights"]
 
 
+def power_cut(opacity: np.ndarray) -> np.ndarray:
+    """Per splat, the Gaussian exponent below which it is skipped at a pixel: ``o exp(power) <
+    ALPHA_MIN`` iff ``power < log(ALPHA_MIN / o)``, less a margin of 1e-9 so that the test without
+    the exp skips only pixels the exact test skips too (-inf for ``o = 0``: the exact test decides)."""
+    o = np.asarray(opacity, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        return np.where(o > 0.0, np.log(ALPHA_MIN / np.where(o > 0.0, o, 1.0)) - 1e-9, -np.inf)
+
+
 def _walk_python(sub_start, pair_splat, means2d, conics, opac, held, pix_w, width, height, sub, gsx, out):
     """The kernel's rules, one pixel at a time (the fallback without numba)."""
     for s in range(sub_start.shape[0] - 1):
@@ -71,12 +80,7 @@ def _walk_python(sub_start, pair_splat, means2d, conics, opac, held, pix_w, widt
 
 if HAVE_NUMBA:
     @numba.njit(parallel=True, cache=True, fastmath=False)
-    def _walk(sub_start, pair_splat, means2d, conics, opac, held, pix_w, width, height, sub, gsx, pair_w):
-        # A splat is skipped at a pixel when o exp(power) < ALPHA_MIN, i.e. power < log(ALPHA_MIN / o):
-        # tested first without the exp, with a margin so that only pixels skipped anyway are skipped.
-        pcut = np.empty(opac.shape[0])
-        for i in range(opac.shape[0]):
-            pcut[i] = np.log(ALPHA_MIN / opac[i]) - 1e-9 if opac[i] > 0.0 else -np.inf
+    def _walk(sub_start, pair_splat, means2d, conics, opac, pcut, held, pix_w, width, height, sub, gsx, pair_w):
         nsub = sub_start.shape[0] - 1
         for s in numba.prange(nsub):
             p0, p1 = sub_start[s], sub_start[s + 1]
@@ -146,7 +150,7 @@ def projection_weights(proj: Projection, opacities: torch.Tensor, width: int, he
         if not HAVE_NUMBA:
             raise ValueError("compiled: needs the numba package")
         pair_w = np.zeros(pair_splat.shape[0])
-        _walk(sub_start, pair_splat, *args, pair_w)
+        _walk(sub_start, pair_splat, *args[:3], power_cut(args[2]), *args[3:], pair_w)
         return np.bincount(pair_splat, weights=pair_w, minlength=n)
     out = np.zeros(n)
     _walk_python(sub_start, pair_splat, *args, out)
@@ -185,12 +189,13 @@ class WeightScene:
 
     ``means [N, 3]`` (world units), ``cov6 [N, 6]`` world covariances ``(xx, xy, xz, yy, yz, zz)``
     (world units squared, from :func:`covariances_from_params` in float64), ``opacity [N]``
-    (activated).
+    (activated), ``power_cut [N]`` (:func:`power_cut`).
     """
 
     means: np.ndarray
     cov6: np.ndarray
     opacity: np.ndarray
+    power_cut: np.ndarray
 
     @classmethod
     def from_scene(cls, scene) -> "WeightScene":
@@ -199,7 +204,8 @@ class WeightScene:
                                           torch.tensor(np.asarray(scene.quats), dtype=torch.float64))
             opac = torch.sigmoid(torch.tensor(np.asarray(scene.opacity_logits), dtype=torch.float64))
         cov6 = np.ascontiguousarray(cov.reshape(-1, 9)[:, [0, 1, 2, 4, 5, 8]].numpy())
-        return cls(np.ascontiguousarray(np.asarray(scene.means, dtype=np.float64)), cov6, opac.numpy())
+        opacity = opac.numpy()
+        return cls(np.ascontiguousarray(np.asarray(scene.means, dtype=np.float64)), cov6, opacity, power_cut(opacity))
 
     @property
     def num_splats(self) -> int:
@@ -210,8 +216,8 @@ if HAVE_NUMBA:
     @numba.njit(parallel=True, cache=True, fastmath=False)
     def _project(means, cov6, rot, trans, fx, fy, cx, cy, lim_x, lim_y, width, height, sub,
                  means2d, conics, depths, rect):
-        """project_gaussians + tile_rects in float64; ``rect[i]`` = sub-tile range (x0, x1, y0, y1),
-        empty (all 0) when culled."""
+        """project_gaussians + tile_rects in float64; ``rect[:, i]`` = sub-tile range (x0, x1, y0, y1),
+        empty (all 0) when culled (``means2d`` and ``conics`` are then not written)."""
         gx = (width + TILE_SIZE - 1) // TILE_SIZE
         gy = (height + TILE_SIZE - 1) // TILE_SIZE
         gsx = (width + sub - 1) // sub
@@ -223,10 +229,10 @@ if HAVE_NUMBA:
             y = rot[1, 0] * mx + rot[1, 1] * my + rot[1, 2] * mz + trans[1]
             z = rot[2, 0] * mx + rot[2, 1] * my + rot[2, 2] * mz + trans[2]
             depths[i] = z
-            rect[i, 0] = 0
-            rect[i, 1] = 0
-            rect[i, 2] = 0
-            rect[i, 3] = 0
+            rect[0, i] = 0
+            rect[1, i] = 0
+            rect[2, i] = 0
+            rect[3, i] = 0
             if not z >= NEAR_PLANE:
                 continue
             tx = min(max(x / z, -lim_x), lim_x) * z
@@ -273,10 +279,10 @@ if HAVE_NUMBA:
             y0 = min(max(np.floor((p1 - r) / TILE_SIZE), 0.0), gy)
             y1 = min(max(np.floor((p1 + r + TILE_SIZE - 1) / TILE_SIZE), 0.0), gy)
             if x1 > x0 and y1 > y0:
-                rect[i, 0] = min(int(x0) * f, gsx)
-                rect[i, 1] = min(int(x1) * f, gsx)
-                rect[i, 2] = min(int(y0) * f, gsy)
-                rect[i, 3] = min(int(y1) * f, gsy)
+                rect[0, i] = min(int(x0) * f, gsx)
+                rect[1, i] = min(int(x1) * f, gsx)
+                rect[2, i] = min(int(y0) * f, gsy)
+                rect[3, i] = min(int(y1) * f, gsy)
 
 
 def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
@@ -305,19 +311,26 @@ def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
     tan_x, tan_y = camera.tan_half_fov
     sub = SUBTILE
     gsx, gsy = (width + sub - 1) // sub, (height + sub - 1) // sub
-    means2d, conics = np.zeros((n, 2)), np.zeros((n, 3))
-    depths, rect = np.zeros(n), np.zeros((n, 4), np.int64)
+    means2d, conics = np.empty((n, 2)), np.empty((n, 3))
+    depths, rect = np.empty(n), np.empty((4, n), np.int64)
     _project(prep.means, prep.cov6, np.ascontiguousarray(w2c[:3, :3]), np.ascontiguousarray(w2c[:3, 3]),
              float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), JACOBIAN_CLAMP * tan_x,
              JACOBIAN_CLAMP * tan_y, width, height, sub, means2d, conics, depths, rect)
-    vis = np.flatnonzero((rect[:, 1] > rect[:, 0]) & (rect[:, 3] > rect[:, 2]))
-    order = vis[np.argsort(depths[vis], kind="stable")]
-    r = rect[order]
-    pair_splat, key = list_pairs(order, means2d, conics, prep.opacity, np.ascontiguousarray(r[:, 0]),
-                                 np.ascontiguousarray(r[:, 1]), np.ascontiguousarray(r[:, 2]),
-                                 np.ascontiguousarray(r[:, 3]), width, height, sub, gsx, gsx * gsy,
-                                 ALPHA_MIN * (1.0 - 1e-4))
+    vis = np.flatnonzero((rect[1] > rect[0]) & (rect[3] > rect[2]))
+    # Visible depths are >= NEAR_PLANE > 0, and positive float64s order as their bits do: sort the
+    # bits as int64. Quicksort is faster than a stable sort; it gives the same order unless two
+    # depths are equal, which is checked (then the stable sort decides, as the renderer's does).
+    keys = depths[vis].view(np.int64)
+    perm = np.argsort(keys, kind="quicksort")
+    ranked = keys[perm]
+    if ranked.size > 1 and np.any(ranked[1:] == ranked[:-1]):
+        perm = np.argsort(keys, kind="stable")
+    order = vis[perm]
+    r = rect[:, order]
+    pair_splat, key = list_pairs(order, means2d, conics, prep.opacity, r[0], r[1], r[2], r[3], width, height, sub,
+                                 gsx, gsx * gsy, ALPHA_MIN * (1.0 - 1e-4))
     sub_start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=gsx * gsy))]).astype(np.int64)
     pair_w = np.zeros(pair_splat.shape[0])
-    _walk(sub_start, pair_splat, means2d, conics, prep.opacity, held_a, pix, width, height, sub, gsx, pair_w)
+    _walk(sub_start, pair_splat, means2d, conics, prep.opacity, prep.power_cut, held_a, pix, width, height, sub, gsx,
+          pair_w)
     return np.bincount(pair_splat, weights=pair_w, minlength=n)

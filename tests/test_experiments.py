@@ -281,3 +281,53 @@ def test_report_of_a_real_run(tiny, tmp_path):
         assert section in text
     assert "proven optimal" in text and "Scale." in text and "Run time:" in text
     assert main(["experiments", "--report-only", "--out", str(tiny["root"] / "full")]) == 0
+
+
+# ---------------------------------------------------------------------------------------- executors, utilities
+_SAME = ("ssim_per_s", "utility_sum", "objective", "predicted_bytes", "bytes_delivered")
+
+
+@pytest.mark.parametrize("executor", ["local", "dask"])
+def test_parallel_runs_give_the_sequential_records(tiny, tmp_path, executor):
+    """--jobs 2: each window's records run as one task on forked workers (or a local Dask cluster);
+    the records are those of the sequential run, in groups."""
+    if executor == "dask":
+        pytest.importorskip("distributed")
+    plan = tiny["plan"]
+    runs = run_experiments(plan, tmp_path / "par", cache_dir=tiny["root"] / "cache", progress=False, jobs=2,
+                           executor=executor)
+    got = {r["record_id"]: r for r in map(json.loads, runs.read_text().splitlines())}
+    want = {r["record_id"]: r for r in tiny["records"]}
+    assert set(got) == set(want)
+    for rid, r in want.items():
+        for key in _SAME:
+            assert got[rid].get(key) == r.get(key), (rid, key)
+
+
+def test_a_plan_of_two_utilities(tiny, tmp_path):
+    """Methods that schedule by a utility run once per utility (their own records and ceilings);
+    sort and preload once. The eq1 records are those of the one-utility plan."""
+    plan = _tiny_plan(utilities=["eq1", "visibility-held"], traces=["lumos-throughput-low-47"], ablations=[])
+    tasks = plan.tasks()
+    ids = [t.record_id for t in tasks]
+    assert any(i.endswith("/ceiling[visibility]") for i in ids) and any(i.endswith("/ceiling") for i in ids)
+    assert any(i.endswith("l3gs/none[visibility-held]") for i in ids)
+    assert not any("sort/none[" in i or "preload/none[" in i for i in ids)
+    assert plan.to_dict()["utilities"] == ["eq1", "visibility-held"]
+    assert "utilities" not in _tiny_plan().to_dict()     # one-utility plans keep their old form
+    runs = run_experiments(plan, tmp_path / "u", cache_dir=tiny["root"] / "cache", progress=False)
+    got = {r["record_id"]: r for r in map(json.loads, runs.read_text().splitlines())}
+    want = {r["record_id"]: r for r in tiny["records"]}
+    for rid, r in got.items():
+        if rid in want and r["kind"] == "sim":
+            assert r["ssim_per_s"] == want[rid]["ssim_per_s"], rid
+    held = [r for r in got.values() if r.get("utility") == "visibility-held"]
+    assert held and all(r["method"].endswith("[visibility-held]") and r["truth_utility"] == "visibility"
+                        for r in held)
+    ceil = {(r["variant"], r["truth_utility"]): r for r in got.values() if r["kind"] == "ceiling"}
+    for r in held:
+        assert r["utility_sum"] <= ceil[(r["variant"], "visibility")]["objective"] * (1 + 1e-9) + 1e-9
+    summary = summarize(list(got.values()))
+    assert "l3gs[visibility-held]" in summary["methods"] and "l3gs" in summary["methods"]
+    with pytest.raises(ExperimentError, match=r"utilities\[0\]: utility 'nope'"):
+        _tiny_plan(utilities=["nope"])

@@ -15,8 +15,8 @@
 
 from __future__ import annotations
 
+import functools
 import math
-import multiprocessing as mp
 import os
 import time
 import traceback
@@ -26,6 +26,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from tqdm import tqdm
 
+from l3gs_opt.executors import EXECUTORS, run_tasks
 from l3gs_opt.methods import solve
 from l3gs_opt.errors import L3gsError, SolveError
 from l3gs_opt.problem.evaluate import evaluate_objective, feasibility_violations
@@ -139,14 +140,6 @@ def _jsonable(value: Any) -> Any:
     return to_jsonable(value, other=str, where="details")
 
 
-def _fork_worker(conn: Any, task: BenchTask, time_limit_s: float | None,
-                 custom: Mapping[str, Callable[..., Solution]] | None) -> None:
-    try:
-        conn.send(run_task(task, time_limit_s, custom))
-    finally:
-        conn.close()
-
-
 def hard_limit(time_limit_s: float | None) -> float | None:
     """Wall-clock seconds after which a record's process is killed."""
     return None if time_limit_s is None else time_limit_s * 1.5 + 10.0
@@ -166,27 +159,8 @@ def _killed_record(task: BenchTask, time_limit_s: float | None, elapsed: float, 
             "model_size": None, "flags": [why]}
 
 
-def run_guarded(task: BenchTask, time_limit_s: float | None,
-                custom: Mapping[str, Callable[..., Solution]] | None = None) -> dict[str, Any]:
-    """``run_task`` in a forked child that is killed past :func:`hard_limit` (used by Dask workers)."""
-    ctx = mp.get_context("fork")
-    parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_fork_worker, args=(child, task, time_limit_s, custom))
-    started = time.perf_counter()
-    proc.start()
-    child.close()
-    limit = hard_limit(time_limit_s)
-    try:
-        if parent.poll(limit):
-            try:
-                return parent.recv()
-            except EOFError:
-                return _killed_record(task, time_limit_s, time.perf_counter() - started, "died")
-        return _killed_record(task, time_limit_s, time.perf_counter() - started, "killed")
-    finally:
-        if proc.is_alive():
-            proc.kill()
-        proc.join()
+def _killed(time_limit_s: float | None, task: BenchTask, elapsed: float, why: str) -> dict[str, Any]:
+    return _killed_record(task, time_limit_s, elapsed, why)
 
 
 @dataclass
@@ -352,8 +326,8 @@ def run_bench(tasks: Iterable[BenchTask], out_path: str | os.PathLike[str], *, t
     tasks = list(tasks)
     if not tasks:
         raise BenchError("tasks", "nothing to run (an empty plan)")
-    if executor not in ("local", "dask"):
-        raise BenchError("executor", f"{executor!r} is not one of local, dask")
+    if executor not in EXECUTORS:
+        raise BenchError("executor", f"{executor!r} is not one of {', '.join(EXECUTORS)}")
     if jobs < 0:
         raise BenchError("jobs", f"= {jobs}: must be >= 0")
     if time_limit_s is not None and not time_limit_s > 0:
@@ -386,80 +360,8 @@ def _run_logged(tasks: list[BenchTask], log: RecordLog, existing: list[dict[str,
             bar.update(1)
             bar.set_postfix_str(f"{rec['method']} {rec['status']}", refresh=False)
 
-        if jobs == 0:
-            for task in todo:
-                write(run_task(task, time_limit_s, custom))
-        elif executor == "local":
-            _run_local(todo, time_limit_s, jobs, custom, write)
-        else:
-            _run_dask(todo, time_limit_s, jobs, address, write)
+        work = functools.partial(run_task, time_limit_s=time_limit_s, custom=custom)
+        run_tasks(todo, work, lambda _task, rec: write(rec), jobs=jobs, executor=executor, address=address,
+                  hard_limit_s=hard_limit(time_limit_s), failed=functools.partial(_killed, time_limit_s))
     finally:
         bar.close()
-
-
-def _run_local(todo: list[BenchTask], time_limit_s: float | None, jobs: int,
-               custom: Mapping[str, Callable[..., Solution]] | None, write: Callable[[dict], None]) -> None:
-    ctx = mp.get_context("fork")
-    limit = hard_limit(time_limit_s)
-    running: list[tuple[BenchTask, Any, Any, float]] = []
-    queue = list(todo)
-    try:
-        while queue or running:
-            while queue and len(running) < jobs:
-                task = queue.pop(0)
-                parent, child = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_fork_worker, args=(child, task, time_limit_s, custom))
-                proc.start()
-                child.close()
-                running.append((task, proc, parent, time.perf_counter()))
-            still = []
-            for task, proc, conn, started in running:
-                elapsed = time.perf_counter() - started
-                if conn.poll():
-                    try:
-                        rec = conn.recv()
-                    except EOFError:
-                        rec = _killed_record(task, time_limit_s, elapsed, "died")
-                    proc.join()
-                    write(rec)
-                elif not proc.is_alive():
-                    proc.join()
-                    write(_killed_record(task, time_limit_s, elapsed, "died"))
-                elif limit is not None and elapsed > limit:
-                    proc.kill()
-                    proc.join()
-                    write(_killed_record(task, time_limit_s, elapsed, "killed"))
-                else:
-                    still.append((task, proc, conn, started))
-            running = still
-            if running:
-                time.sleep(0.01)
-    finally:
-        for _, proc, _, _ in running:  # interrupted: stop the children, keep what was written
-            proc.kill()
-            proc.join()
-
-
-def _run_dask(todo: list[BenchTask], time_limit_s: float | None, jobs: int, address: str | None,
-              write: Callable[[dict], None]) -> None:
-    try:
-        from dask.distributed import Client, LocalCluster, as_completed
-    except ImportError:
-        raise SolveError("executor 'dask' needs the package 'distributed' (pip install 'l3gs-opt[dask]')") from None
-    cluster = None
-    if address:
-        client = Client(address)
-    else:
-        # Threads, not processes: each record already runs in its own killable forked process,
-        # and daemonic Dask worker processes may not fork children.
-        cluster = LocalCluster(n_workers=1, threads_per_worker=max(1, jobs), processes=False,
-                               dashboard_address=None)
-        client = Client(cluster)
-    try:
-        futures = [client.submit(run_guarded, task, time_limit_s, pure=False) for task in todo]
-        for future in as_completed(futures):
-            write(future.result())
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()

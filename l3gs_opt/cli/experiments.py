@@ -61,7 +61,8 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     for note in plan.notes:
         print(f"note: {note}")
     t0 = time.perf_counter()
-    runs = run_experiments(plan, out, resume=args.resume, cache_dir=args.cache, progress=not args.no_progress)
+    runs = run_experiments(plan, out, resume=args.resume, cache_dir=args.cache, progress=not args.no_progress,
+                           jobs=args.jobs, executor=args.executor, address=args.address)
     report = write_report(runs, out)
     print(f"records: {runs}\nreport: {report}\ntime: {time.perf_counter() - t0:.0f} s (load {load:.2f} -> "
           f"{os.getloadavg()[0]:.2f})")
@@ -106,6 +107,12 @@ def register(subparsers) -> None:
     p.add_argument("--check-time", type=float, default=None, metavar="S",
                    help="seconds of the ilp/highs cross-check of each DP ceiling, 0 = none (default 10, quick 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random window starts")
+    p.add_argument("--jobs", type=int, default=0,
+                   help="0 (default): records one by one here; N >= 1: the records of each window run as one task "
+                        "on N workers (--executor)")
+    p.add_argument("--executor", default="local", choices=["local", "dask"],
+                   help="local: forked processes; dask: a local Dask cluster, or the scheduler at --address")
+    p.add_argument("--address", default=None, help="Dask scheduler address (executor dask)")
     p.add_argument("--utilities", default=None, metavar="A,B",
                    help="comma-separated splat utilities; every method that schedules by a utility runs once per "
                         "utility (default eq1; e.g. eq1,visibility)")

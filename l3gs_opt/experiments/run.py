@@ -51,6 +51,7 @@ Example
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -61,6 +62,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from l3gs_opt.errors import L3gsError
+from l3gs_opt.executors import run_tasks
 from l3gs_opt.jsonout import dumps
 from l3gs_opt.records import RecordLog, append_record
 
@@ -129,7 +131,10 @@ class _Scene:
 
             trace = synthetic_poses(spec.kind, seconds=seconds + 2, rate_hz=30, seed=spec.seed)
             if spec.source == "log":
-                path = write_pose_log(trace, self.dir / f"{spec.name}.log")
+                path = self.dir / f"{spec.name}.log"
+                if not path.exists():   # written whole or not at all: parallel workers read it
+                    tmp = write_pose_log(trace, path.with_suffix(f".{os.getpid()}.tmp"))
+                    os.replace(tmp, path)
                 trace = read_pose_log(path)
             self._poses[spec.name] = trace
         return self._poses[spec.name]
@@ -313,7 +318,8 @@ def _read_records(records: RecordLog) -> list[dict]:
 def run_experiments(plan: ExperimentPlan, out_dir: str | os.PathLike[str], *, resume: bool = False,
                     cache_dir: str | os.PathLike[str] | None = None, progress: bool = True,
                     on_record: Callable[[dict], None] | None = None,
-                    log: Callable[[str], None] | None = None) -> Path:
+                    log: Callable[[str], None] | None = None, jobs: int = 0, executor: str = "local",
+                    address: str | None = None) -> Path:
     """Run every record of ``plan`` not yet in ``OUT/runs.jsonl``, appending each as it finishes.
 
     Parameters
@@ -332,6 +338,12 @@ def run_experiments(plan: ExperimentPlan, out_dir: str | os.PathLike[str], *, re
         Called after each record is written (tests interrupt a run with it).
     log : callable(str), optional
         Receives one line per bundle build (default: print).
+    jobs, executor, address
+        ``jobs=0`` (default): records one after another in this process, each written as it
+        finishes. ``jobs >= 1``: the records of each (scene, window, path) form one task, run by
+        :func:`l3gs_opt.executors.run_tasks` (``local``: ``jobs`` forked processes; ``dask``: a
+        local Dask cluster of ``jobs`` threads, or the scheduler at ``address``); a group's records
+        are written when it finishes. Bundles are built here first either way.
 
     Returns
     -------
@@ -351,18 +363,17 @@ def run_experiments(plan: ExperimentPlan, out_dir: str | os.PathLike[str], *, re
     records = RecordLog(out / RUNS_FILE, what="experiments")
     try:
         return _run_locked(plan, out, records, resume=resume, cache_dir=cache_dir, progress=progress,
-                           on_record=on_record, log=log)
+                           on_record=on_record, log=log, jobs=jobs, executor=executor, address=address)
     finally:
         records.close()
 
 
 def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: bool,
                 cache_dir: str | os.PathLike[str] | None, progress: bool,
-                on_record: Callable[[dict], None] | None, log: Callable[[str], None] | None) -> Path:
+                on_record: Callable[[dict], None] | None, log: Callable[[str], None] | None, jobs: int = 0,
+                executor: str = "local", address: str | None = None) -> Path:
     """:func:`run_experiments` once ``records`` (``OUT/runs.jsonl``, torn last line repaired) is locked."""
     from tqdm import tqdm
-
-    from l3gs_opt.simulator.simulation import Simulation, method_spec, trace_bytes
 
     runs = records.path
     plan_path = out / "plan.json"
@@ -398,67 +409,124 @@ def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: 
     t_start = time.perf_counter()
     bar = tqdm(total=len(todo), desc="experiments", unit="record", disable=not progress)
     written = 0
-    scenes = {s.name: s for s in plan.scenes}
-    paths = {p.name: p for p in plan.paths}
-    klass = {t.name: t for t in plan.traces}
-    prepared: dict[str, _Scene] = {}
-    truths: dict[tuple, tuple] = {}
-    sims: dict[tuple, Any] = {}
+    runner = _Runner(plan, cache, say)
+    failures: list[str] = []
+
+    def write(record: dict) -> None:
+        nonlocal written
+        records.append(record, where=record["record_id"])
+        written += 1
+        bar.update(1)
+        bar.set_postfix_str(f"{record['variant']} {record.get('method') or 'ceiling'} {record.get('ablation', '')}",
+                            refresh=False)
+        if on_record is not None:
+            on_record(record)
+
     try:
-        for task in todo:
-            sc = prepared.get(task.scene)
-            if sc is None:
-                sims.clear()   # one scene's bundles and renders at a time
-                truths.clear()
-                sc = prepared[task.scene] = _Scene(scenes[task.scene], plan, cache, say)
-            mbps = scaled_mbps(sc.scene_bytes())
-            tr = klass[task.trace]
-            bandwidth, info = trace_bytes(tr.path, mbps=mbps, start=task.start_s, slots=plan.window_s)
-            poses = sc.poses(paths[task.path], plan.window_s)
-            bundle = sc.bundle(task.variant)
-            truth_name = truth_utility(task.utility)
-            tkey = (task.scene, task.variant, task.path, truth_name)
-            if tkey not in truths:
-                # The true utilities depend on the bundle and the viewer only (not on the window).
-                oracle = Simulation(bundle, poses, bandwidth, config=plan.config("true_viewport"))
-                truths[tkey] = (oracle, _truth(oracle, plan.window_s, truth_name))
-            oracle, truth = truths[tkey]
-            base = {"record_id": task.record_id, "scene": task.scene, "variant": task.variant,
-                    "trace": task.trace, "trace_class": tr.klass, "start_s": task.start_s,
-                    "window_s": plan.window_s, "path": task.path, "path_source": paths[task.path].source,
-                    "mbps": mbps, "scale_factor": info["scale_factor"],
-                    "trace_mean_mbps_raw": info["trace_mean_mbps_raw"],
-                    "window_mean_mbps": info["window_mean_mbps"], "scene_bytes": sc.scene_bytes(),
-                    "bandwidth_cv": float(np.std(bandwidth) / max(float(np.mean(bandwidth)), 1e-12)),
-                    "width": plan.width, "height": plan.height, "truth_utility": truth_name}
-            meta = {"experiment": "ceiling", **{k: base[k] for k in ("scene", "variant", "trace", "start_s",
-                                                                     "path", "mbps", "truth_utility")}}
-            inst = _ceiling_instance(oracle, truth, bandwidth, meta)
-            if task.kind == "ceiling":
-                record = _ceiling_record(task, inst, base, plan.ceiling_time_limit_s, plan.ceiling_check_s)
-            else:
-                sim = sims.get(task.group)
-                if sim is None:
-                    sims.clear()   # groups run one after another: keep one simulation's caches
-                    # Reference renders are shared by content across simulations (sim_render's cache).
-                    sim = sims[task.group] = Simulation(bundle, poses, bandwidth,
-                                                        config=plan.config(task.ablation),
-                                                        reference=str(sc.teacher), info=info)
-                result = sim.run(task.method, utility=task.utility)
-                spec = method_spec(task.method, representation=bundle.manifest["representation"],
-                                   variant=task.variant)
-                record = _sim_record(task, result, inst, base, preload=spec.preload)
-            records.append(record, where=task.record_id)
-            written += 1
-            bar.update(1)
-            bar.set_postfix_str(f"{task.variant} {task.label if task.method else 'ceiling'} {task.ablation}",
-                                refresh=False)
-            if on_record is not None:
-                on_record(record)
+        if jobs == 0:
+            for task in todo:
+                write(runner.record(task))
+        else:
+            # Bundles, teachers and pose logs first, here: workers only read them.
+            for task in todo:
+                runner.scene(task.scene).bundle(task.variant)
+                runner.scene(task.scene).poses(runner.paths[task.path], plan.window_s)
+            groups: dict[tuple, list[Task]] = {}
+            for task in todo:
+                groups.setdefault((task.scene, task.trace, task.start_s, task.path), []).append(task)
+
+            def write_group(group: list[Task], result: Any) -> None:
+                if isinstance(result, str):
+                    failures.append(f"{group[0].record_id}...: {result}")
+                    return
+                for record in result:
+                    write(record)
+
+            run_tasks(list(groups.values()), functools.partial(_run_group, plan, str(cache)), write_group,
+                      jobs=jobs, executor=executor, address=address, failed=_group_failed,
+                      start_method="spawn")   # this process has rendered (numba and torch thread pools)
     finally:
         bar.close()
-        builds = {f"{name}/{v}": s for name, sc in prepared.items() for v, s in sc.build_s.items()}
+        builds = {f"{name}/{v}": s for name, sc in runner.prepared.items() for v, s in sc.build_s.items()}
         session.update(wall_s=time.perf_counter() - t_start, loadavg_end=list(os.getloadavg()),
-                       records_written=written, build_s=builds)
+                       records_written=written, build_s=builds, jobs=jobs, executor=executor)
         append_record(out / "sessions.jsonl", session)   # covered by the lock on runs.jsonl
+    if failures:
+        raise ExperimentError("runs", f"{len(failures)} group(s) of records failed (run again with --resume to "
+                                      f"retry them): {'; '.join(failures[:3])}")
     return runs
+
+
+def _run_group(plan: ExperimentPlan, cache: str, tasks: list[Task]) -> list[dict] | str:
+    """A worker's share: the records of one (scene, window, path), in plan order (or the error)."""
+    try:
+        runner = _Runner(plan, Path(cache), lambda _line: None)
+        return [runner.record(task) for task in tasks]
+    except Exception as exc:   # reported by the parent, which writes what the other groups finished
+        return f"{type(exc).__name__}: {exc}"
+
+
+def _group_failed(tasks: list[Task], seconds: float, why: str) -> str:
+    return f"worker {why} after {seconds:.0f} s"
+
+
+class _Runner:
+    """Runs records one at a time, keeping what consecutive records share: a scene's bundles, the
+    true utilities of a (variant, path, utility), the Simulation of a group."""
+
+    def __init__(self, plan: ExperimentPlan, cache: Path, say: Callable[[str], None]):
+        self.plan, self.cache, self.say = plan, cache, say
+        self.scenes = {s.name: s for s in plan.scenes}
+        self.paths = {p.name: p for p in plan.paths}
+        self.klass = {t.name: t for t in plan.traces}
+        self.prepared: dict[str, _Scene] = {}
+        self.truths: dict[tuple, tuple] = {}
+        self.sims: dict[tuple, Any] = {}
+
+    def scene(self, name: str) -> _Scene:
+        sc = self.prepared.get(name)
+        if sc is None:
+            self.sims.clear()   # one scene's bundles and renders at a time
+            self.truths.clear()
+            sc = self.prepared[name] = _Scene(self.scenes[name], self.plan, self.cache, self.say)
+        return sc
+
+    def record(self, task: Task) -> dict:
+        from l3gs_opt.simulator.simulation import Simulation, method_spec, trace_bytes
+
+        plan, paths = self.plan, self.paths
+        sc = self.scene(task.scene)
+        mbps = scaled_mbps(sc.scene_bytes())
+        tr = self.klass[task.trace]
+        bandwidth, info = trace_bytes(tr.path, mbps=mbps, start=task.start_s, slots=plan.window_s)
+        poses = sc.poses(paths[task.path], plan.window_s)
+        bundle = sc.bundle(task.variant)
+        truth_name = truth_utility(task.utility)
+        tkey = (task.scene, task.variant, task.path, truth_name)
+        if tkey not in self.truths:
+            # The true utilities depend on the bundle and the viewer only (not on the window).
+            oracle = Simulation(bundle, poses, bandwidth, config=plan.config("true_viewport"))
+            self.truths[tkey] = (oracle, _truth(oracle, plan.window_s, truth_name))
+        oracle, truth = self.truths[tkey]
+        base = {"record_id": task.record_id, "scene": task.scene, "variant": task.variant,
+                "trace": task.trace, "trace_class": tr.klass, "start_s": task.start_s,
+                "window_s": plan.window_s, "path": task.path, "path_source": paths[task.path].source,
+                "mbps": mbps, "scale_factor": info["scale_factor"],
+                "trace_mean_mbps_raw": info["trace_mean_mbps_raw"],
+                "window_mean_mbps": info["window_mean_mbps"], "scene_bytes": sc.scene_bytes(),
+                "bandwidth_cv": float(np.std(bandwidth) / max(float(np.mean(bandwidth)), 1e-12)),
+                "width": plan.width, "height": plan.height, "truth_utility": truth_name}
+        meta = {"experiment": "ceiling", **{k: base[k] for k in ("scene", "variant", "trace", "start_s",
+                                                                 "path", "mbps", "truth_utility")}}
+        inst = _ceiling_instance(oracle, truth, bandwidth, meta)
+        if task.kind == "ceiling":
+            return _ceiling_record(task, inst, base, plan.ceiling_time_limit_s, plan.ceiling_check_s)
+        sim = self.sims.get(task.group)
+        if sim is None:
+            self.sims.clear()   # groups run one after another: keep one simulation's caches
+            # Reference renders are shared by content across simulations (sim_render's cache).
+            sim = self.sims[task.group] = Simulation(bundle, poses, bandwidth, config=plan.config(task.ablation),
+                                                     reference=str(sc.teacher), info=info)
+        result = sim.run(task.method, utility=task.utility)
+        spec = method_spec(task.method, representation=bundle.manifest["representation"], variant=task.variant)
+        return _sim_record(task, result, inst, base, preload=spec.preload)
