@@ -259,8 +259,8 @@ def test_report_tables_match_a_hand_computation(tmp_path):
 
     path = write_report(_hand_records(), tmp_path)
     text = path.read_text()
-    assert "| l3gs | layered | 2 | 0.7000 | 0.1000 | 20.00 | - |" in text
-    assert "| sort | sort | 2 | 0.4000 | 0.0000 | 20.00 | +75.0% |" in text
+    assert "| l3gs | layered | 2 | 0.7000 | 0.7000 | 0.1000 | 20.00 | - |" in text
+    assert "| sort | sort | 2 | 0.4000 | 0.4000 | 0.0000 | 20.00 | +75.0% |" in text
     assert "l3gs vs the best baseline (sort): +75.0%" in text and "+87.5%" in text
     assert "| l3gs | 0.7000 | 0.7500 |" in text
     assert "| low | low-47 | 1 | 0.500 | 20.0% | 0.6000 | 0.4000 | 0.2000 | 1.0000 |" in text
@@ -331,3 +331,39 @@ def test_a_plan_of_two_utilities(tiny, tmp_path):
     assert "l3gs[visibility-held]" in summary["methods"] and "l3gs" in summary["methods"]
     with pytest.raises(ExperimentError, match=r"utilities\[0\]: utility 'nope'"):
         _tiny_plan(utilities=["nope"])
+
+
+def test_plan_fidelity_and_its_report_section(tiny, tmp_path):
+    from l3gs_opt.experiments.run import plan_fidelity
+
+    plan = _tiny_plan(utilities=["eq1", "visibility"])
+    out = tmp_path / "f"
+    out.mkdir()
+    got = plan_fidelity(plan, out, cache_dir=tiny["root"] / "cache", samples=3)
+    assert set(got["tiny"]["utilities"]) == {"eq1", "visibility"}
+    assert json.loads((out / "fidelity.json").read_text()) == json.loads(json.dumps(got))
+    for c in got["tiny"]["utilities"].values():
+        assert c["ms_per_viewpoint"] > 0
+    report = write_report(tiny["records"], out, fidelity=got).read_text()
+    assert "### Utility fidelity" in report and "| tiny | visibility |" in report
+
+
+def test_by_utility_headline_by_hand():
+    from l3gs_opt.experiments.report import _by_utility
+
+    def m(name, u, mean, first5):
+        return {"method_name": name, "utility": u, "ssim_mean": mean, "ssim_first5": first5}
+
+    methods = {"l3gs": m("l3gs", "eq1", 0.5, 0.1), "l3gs[visibility]": m("l3gs", "visibility", 0.6, 0.3),
+               "sort": m("sort", "eq1", 0.4, 0.2), "separate": m("separate", "eq1", 0.3, 0.0),
+               "l3gs-noseg": m("l3gs-noseg", "eq1", 0.55, 0.2),
+               "l3gs-noseg[visibility]": m("l3gs-noseg", "visibility", 0.66, 0.25)}
+    u = _by_utility(methods)
+    assert u["best"] == "visibility"
+    vis = u["by_utility"]["visibility"]
+    assert set(vis["baselines"]) == {"sort", "separate", "l3gs-noseg", "l3gs-noseg[visibility]"}
+    assert vis["baselines"]["sort"]["l3gs_vs_pct"] == pytest.approx(50.0)
+    assert vis["baselines"]["l3gs-noseg[visibility]"]["l3gs_vs_pct"] == pytest.approx(100 * (0.6 / 0.66 - 1))
+    assert vis["vs_mean_of_paper_baselines_pct"] == pytest.approx((50.0 + 100.0) / 2)
+    assert vis["matches_every_baseline"] is False and vis["beats_every_baseline_first5"] is True
+    assert u["by_utility"]["eq1"]["matches_every_baseline"] is False

@@ -22,7 +22,7 @@ def _list(text: str | None) -> list[str] | None:
 
 def _cmd_experiments(args: argparse.Namespace) -> int:
     from l3gs_opt.experiments.plan import RUNS_FILE, ExperimentError, SceneSpec, make_plan
-    from l3gs_opt.experiments.run import run_experiments
+    from l3gs_opt.experiments.run import plan_fidelity, run_experiments
     from l3gs_opt.experiments.report import write_report
 
     out = Path(args.out)
@@ -63,7 +63,19 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     runs = run_experiments(plan, out, resume=args.resume, cache_dir=args.cache, progress=not args.no_progress,
                            jobs=args.jobs, executor=args.executor, address=args.address)
+    fidelity = plan_fidelity(plan, out, cache_dir=args.cache) if not args.no_fidelity else {}
     report = write_report(runs, out)
+    if args.json:
+        from l3gs_opt.bench.run import read_records
+        from l3gs_opt.experiments.report import summarize
+        from l3gs_opt.jsonout import dumps
+
+        s = summarize(read_records(runs))
+        keep = ("variant", "utility", "runs", "ssim_mean", "ssim_first5", "ssim_std", "psnr_mean")
+        print(dumps({"methods": {m: {k: v.get(k) for k in keep} for m, v in s["methods"].items()},
+                     "headline": s["headline"], "utilities": s.get("utilities", {}), "fidelity": fidelity,
+                     "records": str(runs), "report": str(report)}, where="experiments"))
+        return 0
     print(f"records: {runs}\nreport: {report}\ntime: {time.perf_counter() - t0:.0f} s (load {load:.2f} -> "
           f"{os.getloadavg()[0]:.2f})")
     return 0
@@ -107,6 +119,10 @@ def register(subparsers) -> None:
     p.add_argument("--check-time", type=float, default=None, metavar="S",
                    help="seconds of the ilp/highs cross-check of each DP ceiling, 0 = none (default 10, quick 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random window starts")
+    p.add_argument("--json", action="store_true",
+                   help="print the per-method means, the per-utility headline and fidelity as one JSON object")
+    p.add_argument("--no-fidelity", action="store_true",
+                   help="skip the utility fidelity check on the layered bundles (fidelity.json)")
     p.add_argument("--jobs", type=int, default=0,
                    help="0 (default): records one by one here; N >= 1: the records of each window run as one task "
                         "on N workers (--executor)")

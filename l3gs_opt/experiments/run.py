@@ -530,3 +530,40 @@ class _Runner:
         result = sim.run(task.method, utility=task.utility)
         spec = method_spec(task.method, representation=bundle.manifest["representation"], variant=task.variant)
         return _sim_record(task, result, inst, base, preload=spec.preload)
+
+
+def plan_fidelity(plan: ExperimentPlan, out_dir: str | os.PathLike[str], *,
+                  cache_dir: str | os.PathLike[str] | None = None, samples: int = 8) -> dict:
+    """How well each of the plan's utilities (and ``eq1``) predicts the picture on each scene's
+    layered bundle and the plan's first path (:func:`l3gs_opt.pipeline.fidelity.utility_fidelity`
+    at the plan's render size), written to ``OUT/fidelity.json`` and returned: ``{scene: {utility:
+    correlations and seconds per viewpoint}}``. Needs the bundles the run built."""
+    from l3gs_opt.pipeline.fidelity import utility_fidelity
+
+    out = Path(out_dir)
+    cache = Path(cache_dir) if cache_dir is not None else out / "cache"
+    if "layered" not in plan.variants:
+        return {}
+    names = list(dict.fromkeys(["eq1", *plan.utilities]))
+    result: dict[str, Any] = {}
+    for spec in plan.scenes:
+        sc = _Scene(spec, plan, cache, lambda _line: None)
+        bundle = sc.dir / "layered"
+        if not (bundle / "manifest.json").exists():
+            continue
+        path_spec = plan.paths[0]
+        log = sc.dir / f"{path_spec.name}.fidelity.log"
+        if not log.exists():
+            from l3gs_opt.traces.poses import write_pose_log
+
+            tmp = write_pose_log(sc.poses(path_spec, plan.window_s), log.with_suffix(f".{os.getpid()}.tmp"))
+            os.replace(tmp, log)
+        rep = utility_fidelity(bundle, log, utilities=names, samples=samples, slots=plan.window_s,
+                               width=plan.width, height=plan.height)
+        result[spec.name] = {"path": path_spec.name, "samples": rep.setup["samples"],
+                             "candidates": rep.setup["candidates"],
+                             "spearman_ssim_chunk_size": rep.setup["spearman_ssim_chunk_size"],
+                             "utilities": {n: {**rep.correlations[n], "ms_per_viewpoint":
+                                               1e3 * rep.seconds_per_viewpoint[n]} for n in rep.utilities}}
+    (out / "fidelity.json").write_text(dumps(result, indent=1, where="fidelity") + "\n")
+    return result
