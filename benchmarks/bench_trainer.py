@@ -21,6 +21,7 @@ view: teacher, then the smallest and largest version of each variant).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -41,7 +42,9 @@ from l3gs_opt.pipeline.build import DEFAULT, QUICK, build_bundle, scale_camera  
 from l3gs_opt.scene.splats import write_ply  # noqa: E402
 from l3gs_opt.scene.procedural import make_scene  # noqa: E402
 
-VARIANTS = ("layered", "separate", "sort")
+#: Bundles built and scored: the label, the bundle variant and the schedule's ``layered_base``.
+VARIANTS = {"layered": ("layered", "top"), "layered-pruned": ("layered", "pruned"), "separate": ("separate", "top"),
+            "sort": ("sort", "top")}
 
 
 def _render(scene, cam) -> np.ndarray:
@@ -57,15 +60,19 @@ def main(argv=None) -> int:
     ap.add_argument("--test", type=int, default=6, help="held-out cameras")
     ap.add_argument("--out", default=None, help="output prefix (default benchmarks/results/trainer[_quick])")
     ap.add_argument("--work", default="/tmp/l3gs_bench_trainer", help="scratch folder for the bundles")
+    ap.add_argument("--objects", type=int, default=4, help="objects in the procedural room (default 4)")
+    ap.add_argument("--width", type=int, default=None, help="training/test view width (default: the schedule's)")
     args = ap.parse_args(argv)
     schedule = QUICK if args.quick else DEFAULT
+    if args.width is not None:
+        schedule = dataclasses.replace(schedule, max_width=args.width)
     n = args.splats or (10_000 if args.quick else 60_000)
     sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else [int(n * f) for f in (0.1, 0.2, 0.35, 0.5)]
     out = Path(args.out or f"benchmarks/results/trainer{'_quick' if args.quick else ''}")
     work = Path(args.work)
     info = machine_info()
     t_all = time.perf_counter()
-    teacher = make_scene(n, objects=4, sh_degree=3, seed=0)
+    teacher = make_scene(n, objects=args.objects, sh_degree=3, seed=0)
     teacher_path = write_ply(teacher, work / "teacher.ply")
     w, h = 320, 240
     train_cams = orbit_path(args.views, width=w, height=h)
@@ -73,17 +80,18 @@ def main(argv=None) -> int:
     test_cams = [scale_camera(c, schedule.max_width) for c in dense[1::2][::max(1, args.views // args.test)]][:args.test]
     with threads(TRAIN_THREADS):
         targets = [_render(teacher, c) for c in test_cams]
-    results = {"machine": info, "teacher_splats": n, "teacher_sh_degree": 3, "sizes": sizes,
+    results = {"machine": info, "teacher_splats": n, "teacher_sh_degree": 3, "sizes": sizes, "objects": args.objects,
                "schedule": "quick" if args.quick else "default", "train_views": args.views,
                "test_views": len(test_cams), "resolution": [test_cams[0].width, test_cams[0].height],
                "variants": {}}
     strip, labels = [targets[0]], ["teacher"]
-    for variant in VARIANTS:
+    for label, (variant, base) in VARIANTS.items():
         t0 = time.perf_counter()
-        res = build_bundle(teacher_path, train_cams, sizes, variant, work / variant, schedule=schedule,
-                           show_progress=False, log=lambda s: print(f"[{variant}] {s}", flush=True))
+        res = build_bundle(teacher_path, train_cams, sizes, variant, work / label,
+                           schedule=dataclasses.replace(schedule, layered_base=base), show_progress=False,
+                           log=lambda s: print(f"[{label}] {s}", flush=True))
         build_s = time.perf_counter() - t0
-        b = read_bundle(work / variant)
+        b = read_bundle(work / label)
         rows = []
         for lvl in range(b.num_levels):
             sc = b.scene(lvl)
@@ -96,10 +104,10 @@ def main(argv=None) -> int:
                          "ssim": float(np.mean([ssim(i, t) for i, t in zip(imgs, targets)]))})
             if lvl in (0, b.num_levels - 1):
                 strip.append(imgs[0])
-                labels.append(f"{variant} {sc.num_splats}")
-        results["variants"][variant] = {"build_seconds": round(build_s, 2), "stage_seconds": res.stage_seconds,
+                labels.append(f"{label} {sc.num_splats}")
+        results["variants"][label] = {"build_seconds": round(build_s, 2), "stage_seconds": res.stage_seconds,
                                         "levels": rows, "loadavg_after": list(os.getloadavg())}
-        print(f"{variant}: {build_s:.1f} s", [(r["splats"], round(r["psnr"], 2), round(r["ssim"], 4)) for r in rows],
+        print(f"{label}: {build_s:.1f} s", [(r["splats"], round(r["psnr"], 2), round(r["ssim"], 4)) for r in rows],
               flush=True)
     results["total_seconds"] = round(time.perf_counter() - t_all, 2)
     results["loadavg_at_end"] = list(os.getloadavg())
@@ -130,21 +138,22 @@ def _markdown(r: dict) -> str:
              f"Machine: {m['cores']} cores, {m['cpu']}; torch {m['packages'].get('torch')}, Python {m['python']}; "
              f"load average at start {[round(x, 2) for x in m['loadavg_at_start']]}, at end "
              f"{[round(x, 2) for x in r['loadavg_at_end']]} (shared machine).",
-             f"Teacher: procedural room, {r['teacher_splats']} splats, SH degree 3, 4 objects. "
+             f"Teacher: procedural room, {r['teacher_splats']} splats, SH degree 3, {r.get('objects', 4)} objects. "
              f"{r['train_views']} orbit training views, {r['test_views']} held-out views between them, "
              f"{r['resolution'][0]}x{r['resolution'][1]} pixels. PSNR (dB) / SSIM against the teacher's render, "
              f"mean over the held-out views. Bytes: what a client has received to show that version "
              f"(layered/sort: layers 0..l; separate: version l alone).", "",
-             "| version | splats | layered PSNR | separate PSNR | sort PSNR | layered SSIM | separate SSIM | "
-             "sort SSIM | layered bytes | separate bytes |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| version | splats | " + " | ".join(f"{k} PSNR" for k in r["variants"]) + " | "
+             + " | ".join(f"{k} SSIM" for k in r["variants"]) + " | layered bytes | separate bytes |",
+             "|---|---|" + "---|" * (2 * len(r["variants"]) + 2)]
     v = r["variants"]
     for i, d in enumerate(r["sizes"]):
-        row = [v[k]["levels"][i] for k in VARIANTS]
+        row = [v[k]["levels"][i] for k in v]
         lines.append(f"| {i + 1} | {d} | " + " | ".join(f"{x['psnr']:.2f}" for x in row) + " | "
                      + " | ".join(f"{x['ssim']:.4f}" for x in row)
-                     + f" | {row[0]['bytes']} | {row[1]['bytes']} |")
+                     + f" | {v['layered']['levels'][i]['bytes']} | {v['separate']['levels'][i]['bytes']} |")
     lines += ["", "Build times (wall clock, s):", "", "| variant | total | stages |", "|---|---|---|"]
-    for k in VARIANTS:
+    for k in v:
         st = ", ".join(f"{s} {t:.1f}" for s, t in v[k]["stage_seconds"].items())
         lines.append(f"| {k} | {v[k]['build_seconds']:.1f} | {st} |")
     lines += ["", f"Total benchmark time {r['total_seconds']:.0f} s.", ""]

@@ -106,3 +106,22 @@ def test_cli_build_quick(setup, capsys):
                 "--variant", "sort", "--out", tmp / "cli", "--quick", "--no-progress") == 0
     assert read_bundle(tmp / "cli").manifest["build"]["schedule"]["max_width"] == 128
     assert "wrote" in capsys.readouterr().out
+
+
+def test_pruned_base_layer_is_the_separate_first_version(setup):
+    """layered_base='pruned': the layered bundle's base layer is the separate variant's first version
+    (the paper: at the first version layered equals separate), and the upper layers still stack."""
+    import dataclasses
+
+    tmp, scene, cams = setup
+    sched = dataclasses.replace(TINY, layered_base="pruned")
+    build_bundle(tmp / "t.ply", cams, SIZES, "separate", tmp / "sep-p", schedule=sched, show_progress=False)
+    build_bundle(tmp / "t.ply", cams, SIZES, "layered", tmp / "lay-p", schedule=sched, show_progress=False)
+    sep, lay = read_bundle(tmp / "sep-p"), read_bundle(tmp / "lay-p")
+    a, b = sep.level_scene(0), lay.level_scene(0)
+    ia, ib = np.lexsort(a.means.T), np.lexsort(b.means.T)   # chunks store rows by object: same rows, other order
+    for field in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+        assert np.array_equal(getattr(a, field)[ia], getattr(b, field)[ib]), field
+    assert [lv["cumulative_splats"] for lv in lay.manifest["levels"]] == SIZES
+    with pytest.raises(BuildError, match="layered_base = 'x'"):
+        BuildSchedule(layered_base="x")

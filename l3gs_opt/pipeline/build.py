@@ -86,6 +86,12 @@ class BuildSchedule:
     compact_sh_degree : int
         SH degree of the compact form (``distill``).
     seed : int
+    layered_base : {"top", "pruned"}
+        Where a layered (or distill) bundle's base layer comes from. ``top``: the first ``d_1``
+        splats of the teacher pruned to the top size ``d_L`` (sorted by significance), fine-tuned
+        alone. ``pruned``: the paper's base layer, the teacher pruned by Prune2TargetSize down the
+        chain ``d_L -> ... -> d_1`` -- the ``separate`` variant's first version, bit for bit (same
+        schedule and cameras) -- kept as it is; the upper layers come from the top model either way.
     """
 
     max_width: int = 320
@@ -95,6 +101,11 @@ class BuildSchedule:
     layer_iterations: int = 400
     compact_sh_degree: int = 0
     seed: int = 0
+    layered_base: str = "top"
+
+    def __post_init__(self) -> None:
+        if self.layered_base not in ("top", "pruned"):
+            raise BuildError(f"layered_base = {self.layered_base!r}: must be 'top' or 'pruned'")
 
     def train_config(self, kind: str):
         """The :class:`TrainConfig` of a ``"recovery"``, ``"finetune"`` or ``"layer"`` run."""
@@ -332,7 +343,16 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
     if variant in ("layered", "distill"):
         srt = run(f"prune_{sizes[-1]}", prune(scene, sizes[-1]))
         cur, prev = None, 0
+        if schedule.layered_base == "pruned" and len(sizes) > 1:
+            # The separate variant's chain (its stage names: the same stages, the same scenes).
+            src = srt
+            for i in range(len(sizes) - 2, -1, -1):
+                src = run(f"version_{i}", prune(src, sizes[i]))
+            cur = dataclasses.replace(src, layers=np.zeros(src.num_splats, np.int32))
+            prev = sizes[0]
         for i, d in enumerate(sizes):
+            if d <= prev and cur is not None:
+                continue   # the base layer, already trained
             lower, new = cur, srt.subset(np.arange(prev, d))
             cur = run(f"layer_{i}", lambda vws, tick, lower=lower, new=new:
                       train_layer(lower, new, vws, config=lc, progress=tick), total=lc.iterations)
