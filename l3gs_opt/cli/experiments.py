@@ -38,7 +38,7 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     if traces is not None and not Path(traces).is_dir():
         traces = _list(traces)
     scenes = None
-    if args.splats is not None or args.objects is not None or args.room_parts:
+    if args.splats is not None or args.objects is not None or args.room_parts or args.sizes or args.sh_degree != 1:
         splats = args.splats if args.splats is not None else (8000 if args.quick else 20_000)
         if splats < 1000:
             raise ExperimentError("--splats", f"{splats}: must be >= 1000")
@@ -46,9 +46,14 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
         if not 1 <= objects <= 12:
             raise ExperimentError("--objects", f"{objects}: must be in 1..12")
         # The name keys the bundle cache: a different segmentation is a different scene.
+        sizes = tuple(int(v) for v in _list(args.sizes)) if args.sizes else ()
+        if args.sh_degree not in (0, 1, 2, 3):
+            raise ExperimentError("--sh-degree", f"{args.sh_degree}: must be 0, 1, 2 or 3")
         name = f"room{splats // 1000}k" + (f"-o{objects}" if objects != 4 else "") + \
-            ("-parts" if args.room_parts else "")
-        scenes = [SceneSpec(name, splats, objects=objects, sh_degree=1, seed=0, room_parts=args.room_parts)]
+            ("-parts" if args.room_parts else "") + (f"-sh{args.sh_degree}" if args.sh_degree != 1 else "") + \
+            ("-L" + "-".join(str(v // 1000) + "k" for v in sizes) if sizes else "")
+        scenes = [SceneSpec(name, splats, objects=objects, sh_degree=args.sh_degree, seed=0, room_parts=args.room_parts,
+                            sizes=sizes)]
     plan = make_plan(quick=args.quick, scenes=scenes, variants=_list(args.variants), traces=traces,
                      starts=args.starts, window_s=args.window, paths=_list(args.paths), methods=_list(args.methods),
                      ablations=_list(args.ablations), ablation_methods=_list(args.ablation_methods),
@@ -109,6 +114,10 @@ def register(subparsers) -> None:
     p.add_argument("--splats", type=int, default=None, help="one room of this many splats instead of the default")
     p.add_argument("--objects", type=int, default=None,
                    help="solids in the room, 1..12 (default 4); with --splats or --room-parts")
+    p.add_argument("--sizes", default=None, metavar="A,B,..",
+                   help="level sizes in splats, increasing to at most --splats (default 1/8, 1/4, 1/2, all; the "
+                        "paper: 45000,90000,135000,180000)")
+    p.add_argument("--sh-degree", type=int, default=1, help="SH degree of the room (default 1; the paper's scenes: 3)")
     p.add_argument("--room-parts", action="store_true",
                    help="the room's floor, ceiling and four walls as six objects of their own (a finer "
                         "segmentation: no chunk holds most of the bytes)")
