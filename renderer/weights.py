@@ -285,6 +285,20 @@ if HAVE_NUMBA:
                 rect[3, i] = min(int(y1) * f, gsy)
 
 
+if HAVE_NUMBA:
+    @numba.njit(parallel=True, cache=True)
+    def _depth_sort_buckets(sub_start, pair_splat, depths):
+        """Sort each sub-tile's pairs by depth, stably (in place)."""
+        for s in numba.prange(sub_start.shape[0] - 1):
+            p0, p1 = sub_start[s], sub_start[s + 1]
+            if p1 - p0 < 2:
+                continue
+            seg = pair_splat[p0:p1].copy()
+            perm = np.argsort(depths[seg], kind="mergesort")
+            for q in range(p1 - p0):
+                pair_splat[p0 + q] = seg[perm[q]]
+
+
 def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
                   pixel_weight: np.ndarray | None = None) -> np.ndarray:
     """:func:`splat_weights` of a prepared scene (float64 [N], pixels). With numba: compiled
@@ -317,19 +331,14 @@ def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
              float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), JACOBIAN_CLAMP * tan_x,
              JACOBIAN_CLAMP * tan_y, width, height, sub, means2d, conics, depths, rect)
     vis = np.flatnonzero((rect[1] > rect[0]) & (rect[3] > rect[2]))
-    # Visible depths are >= NEAR_PLANE > 0, and positive float64s order as their bits do: sort the
-    # bits as int64. Quicksort is faster than a stable sort; it gives the same order unless two
-    # depths are equal, which is checked (then the stable sort decides, as the renderer's does).
-    keys = depths[vis].view(np.int64)
-    perm = np.argsort(keys, kind="quicksort")
-    ranked = keys[perm]
-    if ranked.size > 1 and np.any(ranked[1:] == ranked[:-1]):
-        perm = np.argsort(keys, kind="stable")
-    order = vis[perm]
-    r = rect[:, order]
-    pair_splat, key = list_pairs(order, means2d, conics, prep.opacity, r[0], r[1], r[2], r[3], width, height, sub,
+    r = rect[:, vis]
+    # Pairs listed in index order, then sorted by depth inside each sub-tile (stable: ties keep the
+    # index order), which is the renderer's global stable depth order restricted to the sub-tile,
+    # at the cost of many small sorts in parallel instead of one large one.
+    pair_splat, key = list_pairs(vis, means2d, conics, prep.opacity, r[0], r[1], r[2], r[3], width, height, sub,
                                  gsx, gsx * gsy, ALPHA_MIN * (1.0 - 1e-4))
     sub_start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=gsx * gsy))]).astype(np.int64)
+    _depth_sort_buckets(sub_start, pair_splat, depths)
     pair_w = np.zeros(pair_splat.shape[0])
     _walk(sub_start, pair_splat, means2d, conics, prep.opacity, prep.power_cut, held_a, pix, width, height, sub, gsx,
           pair_w)
