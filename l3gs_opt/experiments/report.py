@@ -276,19 +276,24 @@ def _plt():
 
 
 def _plot_over_time(curves: dict, path: Path, title: str) -> None:
+    """One line per method; a method's utilities share its colour and differ by line style."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    for i, (label, v) in enumerate(curves.items()):
+    fig, ax = plt.subplots(figsize=(9.0, 4.2))
+    names = list(dict.fromkeys(v.get("method_name", k) for k, v in curves.items()))
+    utilities = list(dict.fromkeys(v.get("utility", "eq1") for v in curves.values()))
+    styles = ("-", "--", ":", "-.")
+    for label, v in curves.items():
         y = v["ssim_over_time"]
-        colour = f"C{i % 10}"
-        ax.plot(np.arange(1, len(y) + 1), y, color=colour, lw=1.6, label=f"{label} (mean {v['ssim_mean']:.3f})")
-        ax.axhline(v["ssim_mean"], color=colour, lw=0.8, ls=":")
+        colour = f"C{names.index(v.get('method_name', label)) % 10}"
+        style = styles[utilities.index(v.get("utility", "eq1")) % len(styles)]
+        ax.plot(np.arange(1, len(y) + 1), y, color=colour, ls=style, lw=1.6,
+                label=f"{label} (mean {v['ssim_mean']:.3f})")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("SSIM vs the full scene")
     ax.set_ylim(0, 1.02)
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
