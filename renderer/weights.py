@@ -299,15 +299,88 @@ if HAVE_NUMBA:
                 pair_splat[p0 + q] = seg[perm[q]]
 
 
+if HAVE_NUMBA:
+    @numba.njit(parallel=True, cache=True, fastmath=False)
+    def _walk_prefix(sub_start, pair_splat, means2d, conics, opac, pcut, obj, lay, J, L, width, height, sub, gsx,
+                     pair_w):
+        """Weights in the picture of "every other object whole, this object up to this splat's layer":
+        splat i (object j, layer l) is dimmed by every splat in front except those of object j with a
+        layer above l. Log-transmittances: the full product, and per (object, layer)."""
+        nsub = sub_start.shape[0] - 1
+        log_t_min = np.log(T_MIN)
+        for s in numba.prange(nsub):
+            p0, p1 = sub_start[s], sub_start[s + 1]
+            if p1 == p0:
+                continue
+            x0 = (s % gsx) * sub
+            y0 = (s // gsx) * sub
+            logq = np.zeros((J, L))
+            for ly in range(sub):
+                py = y0 + ly
+                if py >= height:
+                    break
+                for lx in range(sub):
+                    px = x0 + lx
+                    if px >= width:
+                        break
+                    logq[:, :] = 0.0
+                    log_all = 0.0
+                    cx = px + 0.5
+                    cy = py + 0.5
+                    for p in range(p0, p1):
+                        i = pair_splat[p]
+                        dx = means2d[i, 0] - cx
+                        dy = means2d[i, 1] - cy
+                        power = -0.5 * (conics[i, 0] * dx * dx + conics[i, 2] * dy * dy) - conics[i, 1] * dx * dy
+                        if power > 0.0 or power < pcut[i]:
+                            continue
+                        a = opac[i] * np.exp(power)
+                        if a > ALPHA_MAX:
+                            a = ALPHA_MAX
+                        if a < ALPHA_MIN:
+                            continue
+                        j = obj[i]
+                        li = lay[i]
+                        above = 0.0
+                        for m in range(li + 1, L):
+                            above += logq[j, m]
+                        la = np.log1p(-a)
+                        # blended in its picture iff the light it leaves stays >= T_MIN (the
+                        # renderer's early stop; light only decreases along a picture's splats)
+                        if log_all - above + la >= log_t_min:
+                            pair_w[p] += a * np.exp(log_all - above)
+                        log_all += la
+                        logq[j, li] += la
+                        if log_all < log_t_min:
+                            # stop once no later splat can be seen: even with its object's layers
+                            # above 0 taken away, the light left is below T_MIN
+                            most = 0.0
+                            for jj in range(J):
+                                r = 0.0
+                                for m in range(1, L):
+                                    r += logq[jj, m]
+                                if r < most:
+                                    most = r
+                            if log_all - most < log_t_min:
+                                break
+
+
 def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
-                  pixel_weight: np.ndarray | None = None) -> np.ndarray:
+                  pixel_weight: np.ndarray | None = None, prefix: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> np.ndarray:
     """:func:`splat_weights` of a prepared scene (float64 [N], pixels). With numba: compiled
     projection, pair listing and walk, all float64; without it, the torch projection in float64
-    and the Python walk."""
+    and the Python walk.
+
+    ``prefix=(object, layer)`` (int arrays [N], objects numbered 0..J-1; needs numba; not with
+    ``held`` or ``pixel_weight``): each splat's weight in the picture of every other object whole
+    and its own object up to its layer (its object's higher layers in front do not dim it)."""
     n, width, height = prep.num_splats, int(camera.width), int(camera.height)
     held_a = np.ones(n, dtype=np.bool_) if held is None else np.asarray(held, dtype=np.bool_)
     if held_a.shape != (n,):
         raise ValueError(f"held: shape {held_a.shape}, expected ({n},)")
+    if prefix is not None and (held is not None or pixel_weight is not None or not HAVE_NUMBA):
+        raise ValueError("prefix: needs numba, and not with held or pixel_weight")
     if not HAVE_NUMBA:
         with torch.no_grad():
             c = torch.from_numpy(prep.cov6)
@@ -340,6 +413,11 @@ def scene_weights(prep: WeightScene, camera, *, held: np.ndarray | None = None,
     sub_start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=gsx * gsy))]).astype(np.int64)
     _depth_sort_buckets(sub_start, pair_splat, depths)
     pair_w = np.zeros(pair_splat.shape[0])
+    if prefix is not None:
+        obj, lay = (np.ascontiguousarray(a, dtype=np.int64) for a in prefix)
+        _walk_prefix(sub_start, pair_splat, means2d, conics, prep.opacity, prep.power_cut, obj, lay,
+                     int(obj.max()) + 1 if n else 1, int(lay.max()) + 1 if n else 1, width, height, sub, gsx, pair_w)
+        return np.bincount(pair_splat, weights=pair_w, minlength=n)
     _walk(sub_start, pair_splat, means2d, conics, prep.opacity, prep.power_cut, held_a, pix, width, height, sub, gsx,
           pair_w)
     return np.bincount(pair_splat, weights=pair_w, minlength=n)

@@ -254,3 +254,27 @@ def test_a_bad_user_function_is_named():
             u.splat_values(random_scene(5), [make_camera()])
     finally:
         U._REGISTRY.pop("test-bad", None)
+
+
+def test_prefix_weights_are_those_of_the_picture_a_layer_arrives_into():
+    """visibility-prefix: a splat of object j, layer l weighs what it weighs in a render of every
+    other object whole and j's layers <= l (checked by those renders); one layer: visibility."""
+    scene = random_scene(90, seed=13, sh_degree=0, object_ids=True, layers=3)
+    cam = make_camera(40, 30)
+    prep = WeightScene.from_scene(scene)
+    obj = np.unique(scene.object_ids, return_inverse=True)[1].astype(np.int64)
+    lay = scene.layers.astype(np.int64)
+    got = scene_weights(prep, cam, prefix=(obj, lay))
+    for j in range(obj.max() + 1):
+        for l in range(3):
+            rows = np.flatnonzero((obj != j) | (lay <= l))
+            direct = np.zeros(len(obj))
+            direct[rows] = scene_weights(WeightScene.from_scene(scene.subset(rows)), cam)
+            mine = (obj == j) & (lay == l)
+            assert np.abs(direct[mine] - got[mine]).max() < F64_ATOL
+    flat = scene_weights(prep, cam, prefix=(obj, np.zeros(len(obj), np.int64)))
+    assert np.abs(flat - scene_weights(prep, cam)).max() < F64_ATOL
+    u = U.PrefixVisibilityUtility(scale=1.0)
+    assert np.array_equal(u.splat_values(u.prepare(scene), [cam]), got)
+    with pytest.raises(ValueError, match="prefix"):
+        scene_weights(prep, cam, prefix=(obj, lay), held=np.ones(len(obj), bool))

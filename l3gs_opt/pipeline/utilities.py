@@ -16,6 +16,10 @@ Built-ins (:func:`utility_names`):
     Each splat's share of the rendered picture of the full scene: its alpha-compositing weight
     summed over the pixels (:mod:`l3gs_opt.renderer.weights`), occlusion included. Counted on a
     picture ``scale`` times the camera's size and reported in the camera's pixels.
+``visibility-prefix``
+    ``visibility`` in the picture a layer arrives into: a splat is not dimmed by its own object's
+    higher layers (in the full scene an object's base layer lies partly under its own detail, so
+    ``visibility`` undervalues it). Held-free.
 ``visibility-held``
     Held-aware: a splat not held is valued by its weight if it were added alone to what the
     viewer holds (only held splats in front of it dim it), so a coarse splat that fills a hole is
@@ -47,7 +51,7 @@ from l3gs_opt.scene.cameras import Camera
 from l3gs_opt.scene.splats import SplatScene
 
 __all__ = ["UtilityNameError", "SplatUtility", "Eq1Utility", "VisibilityUtility", "CoverageUtility",
-           "CounterfactualUtility", "register_utility", "get_utility", "utility_names", "DEFAULT_UTILITY",
+           "CounterfactualUtility", "PrefixVisibilityUtility", "register_utility", "get_utility", "utility_names", "DEFAULT_UTILITY",
            "scaled_camera", "chunk_gains", "tabulate", "ScenePictures"]
 
 #: The utility used when none is named (the paper's Eq. 1; see benchmarks/results for how the others compare).
@@ -177,6 +181,33 @@ class VisibilityUtility(SplatUtility):
 
     def describe(self) -> dict:
         return {**super().describe(), "scale": self.scale}
+
+
+class PrefixVisibilityUtility(VisibilityUtility):
+    """``visibility`` in the picture a layer arrives into: a splat is dimmed by every splat in front
+    except its own object's higher layers (which arrive after it). Held-free; layered scenes
+    (without object or layer labels it is ``visibility``)."""
+
+    def __init__(self, *, scale: float = DEFAULT_SCALE):
+        super().__init__(scale=scale)
+        self.name = "visibility-prefix"
+
+    def prepare(self, scene: SplatScene) -> Any:
+        n = scene.num_splats
+        obj = np.zeros(n, np.int64) if scene.object_ids is None else np.unique(scene.object_ids, return_inverse=True)[1]
+        lay = np.zeros(n, np.int64) if scene.layers is None else np.asarray(scene.layers, np.int64)
+        return super().prepare(scene), (obj.astype(np.int64), lay)
+
+    def splat_values(self, prepared: Any, cameras: Sequence[Camera], *, held: np.ndarray | None = None) -> np.ndarray:
+        from l3gs_opt.renderer.weights import scene_weights
+
+        weights, labels = prepared
+        out = []
+        for c in cameras:
+            small = scaled_camera(c, self.scale)
+            w = scene_weights(weights, small, prefix=labels)
+            out.append(w * ((c.width * c.height) / (small.width * small.height)))
+        return np.mean(out, axis=0) if out else np.zeros(weights.num_splats)
 
 
 class ScenePictures:
@@ -313,6 +344,7 @@ _REGISTRY: dict[str, Callable[[], SplatUtility]] = {
     "eq1": Eq1Utility,
     "visibility": VisibilityUtility,
     "visibility-held": lambda: VisibilityUtility(held_aware=True),
+    "visibility-prefix": PrefixVisibilityUtility,
     "coverage": CoverageUtility,
     "counterfactual": CounterfactualUtility,
 }
