@@ -365,5 +365,7 @@ def test_by_utility_headline_by_hand():
     assert vis["baselines"]["sort"]["l3gs_vs_pct"] == pytest.approx(50.0)
     assert vis["baselines"]["l3gs-noseg[visibility]"]["l3gs_vs_pct"] == pytest.approx(100 * (0.6 / 0.66 - 1))
     assert vis["vs_mean_of_paper_baselines_pct"] == pytest.approx((50.0 + 100.0) / 2)
+    # one entry per baseline in the mean: l3gs-noseg by the same utility
+    assert vis["vs_mean_of_baselines_pct"] == pytest.approx((50.0 + 100.0 + 100 * (0.6 / 0.66 - 1)) / 3)
     assert vis["matches_every_baseline"] is False and vis["beats_every_baseline_first5"] is True
     assert u["by_utility"]["eq1"]["matches_every_baseline"] is False

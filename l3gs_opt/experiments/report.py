@@ -89,8 +89,11 @@ def _by_utility(methods: dict) -> dict:
                         "l3gs_vs_first5_pct": 100.0 * (v["ssim_first5"] / max(bm["ssim_first5"], 1e-12) - 1.0)}
         if row["baselines"]:
             bs = row["baselines"].values()
-            row["vs_mean_of_baselines_pct"] = _mean(b["l3gs_vs_pct"] for b in bs)
-            paper = [row["baselines"][b]["l3gs_vs_pct"] for b in PAPER_BASELINES if b in row["baselines"]]
+            # One entry per baseline in the means: by the same utility where it ran with it, else as it ran.
+            one = {b: row["baselines"].get(f"{b}[{u}]", row["baselines"].get(b)) for b in BASELINES}
+            one = {b: v for b, v in one.items() if v is not None}
+            row["vs_mean_of_baselines_pct"] = _mean(v["l3gs_vs_pct"] for v in one.values())
+            paper = [one[b]["l3gs_vs_pct"] for b in PAPER_BASELINES if b in one]
             row["vs_mean_of_paper_baselines_pct"] = _mean(paper) if paper else None
             row["matches_every_baseline"] = all(b["l3gs_vs_pct"] >= 0 for b in bs)
             row["beats_every_baseline_first5"] = all(b["l3gs_vs_first5_pct"] > 0 for b in bs)
