@@ -369,3 +369,24 @@ def test_by_utility_headline_by_hand():
     assert vis["vs_mean_of_baselines_pct"] == pytest.approx((50.0 + 100.0 + 100 * (0.6 / 0.66 - 1)) / 3)
     assert vis["matches_every_baseline"] is False and vis["beats_every_baseline_first5"] is True
     assert u["by_utility"]["eq1"]["matches_every_baseline"] is False
+
+
+def test_a_ceiling_whose_solver_hangs_is_killed_and_still_valid(monkeypatch):
+    """The ceiling's HiGHS run is guarded: in a child process (here it finishes: the answer is the
+    direct solve's), and when the child is killed the ceiling is a feasible schedule with the LP
+    bound, status time_limit, saying why."""
+    import l3gs_opt.executors as executors
+    from l3gs_opt.experiments import run as run_mod
+    from l3gs_opt.methods import solve
+    from l3gs_opt.problem.evaluate import feasibility_violations
+
+    inst = Instance("layered", bandwidth=[3, 2, 4], cost=[[2, 2], [1, 3]],
+                    utility=np.array([[[1.0, 2.0], [0.5, 3.0]]] * 3), options=Options(budget="cumulative"))
+    direct = solve(inst, "ilp", backend="highs")
+    guarded = run_mod._guarded_ceiling_ilp(inst, 5.0)
+    assert guarded.objective == pytest.approx(direct.objective) and str(guarded.status) == "optimal"
+    monkeypatch.setattr(executors, "run_guarded", lambda *a, **k: None)   # as if killed
+    killed = run_mod._guarded_ceiling_ilp(inst, 5.0)
+    assert str(killed.status) == "time_limit" and "killed" in killed.message
+    assert killed.bound is not None and killed.bound >= direct.objective - 1e-9 >= killed.objective - 1e-9
+    assert feasibility_violations(inst, killed.arrivals) == []

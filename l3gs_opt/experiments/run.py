@@ -270,22 +270,55 @@ def _sim_record(task: Task, result, inst, base: dict, *, preload: bool = False) 
     return rec
 
 
+def _ceiling_ilp(inst, time_limit_s: float):
+    from l3gs_opt.methods import solve
+
+    # HiGHS 1.14's root-reduced-cost heuristic ran a sub-MIP that ignored the time limit and the
+    # interrupt callbacks for > 20 min on a 14-object ceiling (a one-link Problem I, 60 slots);
+    # without it the same solve stopped at its 20 s limit.
+    return solve(inst, "ilp", backend="highs", time_limit_s=time_limit_s,
+                 options={"mip_heuristic_run_root_reduced_cost": False})
+
+
+#: A ceiling's HiGHS run is killed this long past its time limit (seconds): on a 180k-splat room of
+#: 14 objects one ran > 30 min past a 20 s limit (HiGHS 1.14), with the other heuristic off.
+CEILING_KILL_AFTER_S = 60.0
+
+
+def _guarded_ceiling_ilp(inst, time_limit_s: float):
+    """``ilp/highs`` within ``time_limit_s``, in a child process killed :data:`CEILING_KILL_AFTER_S`
+    past it. A killed run leaves no incumbent: the ceiling is then ``rolling-future:bb``'s schedule
+    (feasible) with the LP relaxation's bound, status ``time_limit``, and says so in its message."""
+    from l3gs_opt.executors import run_guarded
+    from l3gs_opt.methods import solve
+    from l3gs_opt.problem.solution import Status, finish_solution
+
+    sol = run_guarded(functools.partial(_ceiling_ilp, time_limit_s=time_limit_s), inst,
+                      time_limit_s + CEILING_KILL_AFTER_S, lambda *_: None, start_method="spawn")
+    if sol is not None:
+        return sol
+    started = time.perf_counter()
+    lp = solve(inst, "lp", backend="highs", time_limit_s=time_limit_s)
+    heur = solve(inst, "rolling-future:bb", options={"bound": False})
+    return finish_solution(inst, heur.arrivals, problem=heur.problem, method="ilp", status=Status.TIME_LIMIT,
+                           bound=lp.bound,   # the relaxation's bound (None if it did not finish)
+                           runtime_s=time_limit_s + CEILING_KILL_AFTER_S + time.perf_counter() - started,
+                           backend="highs",
+                           message=f"HiGHS killed {CEILING_KILL_AFTER_S:.0f} s past its {time_limit_s:.0f} s limit; "
+                                   "schedule of rolling-future:bb, bound of the LP relaxation")
+
+
 def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: float) -> dict:
     """The exact ceiling: ``link-dp`` (proven optimal, :mod:`l3gs_opt.solvers.link_dp`) when its state
     space is small enough, else ``ilp/highs`` within ``time_limit_s`` (a time-limited answer keeps its
     bound). ``check_s > 0``: also run ``ilp/highs`` for that long and check its incumbent <= the DP
     optimum <= its bound."""
-    from l3gs_opt.methods import solve
     from l3gs_opt.solvers.link_dp import MAX_STATES, link_dp_states, solve_link_dp
 
     if link_dp_states(inst) <= MAX_STATES:
         sol = solve_link_dp(inst)
     else:
-        # HiGHS 1.14's root-reduced-cost heuristic ran a sub-MIP that ignored the time limit and the
-        # interrupt callbacks for > 20 min on a 14-object ceiling (a one-link Problem I, 60 slots);
-        # without it the same solve stopped at its 20 s limit.
-        sol = solve(inst, "ilp", backend="highs", time_limit_s=time_limit_s,
-                    options={"mip_heuristic_run_root_reduced_cost": False})
+        sol = _guarded_ceiling_ilp(inst, time_limit_s)
     rec = dict(base)
     rec.update({
         "kind": "ceiling", "problem": "I" if inst.layered else "II", "method": sol.method, "backend": sol.backend,
@@ -296,10 +329,10 @@ def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: 
         "bandwidth_total": int(inst.bandwidth.sum()), "bytes_chunks": int(inst.cost.sum()),
         "chunk_bytes_max": int(inst.cost.max()), "slot_bytes_mean": float(inst.bandwidth.mean()),
         "object_bytes_share_max": float(inst.cost.sum(axis=1).max() / inst.cost.sum()),
-        "loadavg": list(os.getloadavg()), "check": None,
+        "loadavg": list(os.getloadavg()), "check": None, "message": sol.message,
     })
     if check_s > 0 and sol.method == "link-dp":
-        ilp = solve(inst, "ilp", backend="highs", time_limit_s=check_s)
+        ilp = _guarded_ceiling_ilp(inst, check_s)
         tol = 1e-6 * max(1.0, abs(sol.objective))
         ok = ilp.objective <= sol.objective + tol and (ilp.bound is None or sol.objective <= ilp.bound + tol)
         rec["check"] = {"method": "ilp/highs", "status": str(ilp.status), "objective": float(ilp.objective),
