@@ -99,6 +99,12 @@ def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert "error: --out:" in capsys.readouterr().err
     assert main(["experiments", "--quick", "--objects", "13", "--room-parts", "--out", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: --objects: 13: must be in 1..12")
+    assert main(["experiments", "--quick", "--splats", "2000", "--sizes", "500,3000", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: scene.sizes: [500, 3000]: must increase")
+    assert main(["experiments", "--quick", "--sh-degree", "5", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: --sh-degree: 5: must be 0, 1, 2 or 3")
+    assert main(["experiments", "--quick", "--utilities", "eq1,nope", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: utilities[1]: utility 'nope'")
 
 
 # ---------------------------------------------------------------------------------------- runs
