@@ -30,6 +30,11 @@ _LAZY = {
               "write_camera_path", "synthetic_poses"],
     "pipeline.splat_utility": ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
                 "build_utility_table", "grid_positions"],
+    # Splat utilities (issue 21): the interface, the built-ins by name, and how well they predict the picture.
+    "pipeline.utilities": ["SplatUtility", "UtilityNameError", "register_utility", "get_utility", "utility_names"],
+    "pipeline.fidelity": ["utility_fidelity", "FidelityReport"],
+    "simulator.records": ["RunSummary"],
+    "executors": ["run_tasks"],
     "bench.run": ["BenchError", "BenchTask", "run_bench", "read_records"],
     # One strict JSON serialiser and one JSONL record writer for every output (issue 19).
     "jsonout": ["OutputError", "JsonOutputError"],
