@@ -79,6 +79,22 @@ def _walk_python(sub_start, pair_splat, means2d, conics, opac, held, pix_w, widt
 
 
 if HAVE_NUMBA:
+    from ._kernels import _falloff
+
+    @numba.njit(inline="always")
+    def _alpha(means2d, conics, opac, pcut, i, cx, cy):
+        """Splat ``i``'s alpha at the pixel centre ``(cx, cy)`` by the renderer's rules, or 0 where the
+        renderer skips it (the opacity cut ``pcut`` tried first, without the exp)."""
+        _, _, power = _falloff(means2d, conics, i, cx, cy)
+        if power > 0.0 or power < pcut[i]:
+            return 0.0
+        a = opac[i] * np.exp(power)
+        if a > ALPHA_MAX:
+            a = ALPHA_MAX
+        return a if a >= ALPHA_MIN else 0.0
+
+
+if HAVE_NUMBA:
     @numba.njit(parallel=True, cache=True, fastmath=False)
     def _walk(sub_start, pair_splat, means2d, conics, opac, pcut, held, pix_w, width, height, sub, gsx, pair_w):
         nsub = sub_start.shape[0] - 1
@@ -102,15 +118,8 @@ if HAVE_NUMBA:
                     cy = py + 0.5
                     for p in range(p0, p1):
                         i = pair_splat[p]
-                        dx = means2d[i, 0] - cx
-                        dy = means2d[i, 1] - cy
-                        power = -0.5 * (conics[i, 0] * dx * dx + conics[i, 2] * dy * dy) - conics[i, 1] * dx * dy
-                        if power > 0.0 or power < pcut[i]:
-                            continue
-                        a = opac[i] * np.exp(power)
-                        if a > ALPHA_MAX:
-                            a = ALPHA_MAX
-                        if a < ALPHA_MIN:
+                        a = _alpha(means2d, conics, opac, pcut, i, cx, cy)
+                        if a == 0.0:
                             continue
                         test_t = T * (1.0 - a)
                         if held[i]:
@@ -329,15 +338,8 @@ if HAVE_NUMBA:
                     cy = py + 0.5
                     for p in range(p0, p1):
                         i = pair_splat[p]
-                        dx = means2d[i, 0] - cx
-                        dy = means2d[i, 1] - cy
-                        power = -0.5 * (conics[i, 0] * dx * dx + conics[i, 2] * dy * dy) - conics[i, 1] * dx * dy
-                        if power > 0.0 or power < pcut[i]:
-                            continue
-                        a = opac[i] * np.exp(power)
-                        if a > ALPHA_MAX:
-                            a = ALPHA_MAX
-                        if a < ALPHA_MIN:
+                        a = _alpha(means2d, conics, opac, pcut, i, cx, cy)
+                        if a == 0.0:
                             continue
                         j = obj[i]
                         li = lay[i]

@@ -145,7 +145,7 @@ def hard_limit(time_limit_s: float | None) -> float | None:
     return None if time_limit_s is None else time_limit_s * 1.5 + 10.0
 
 
-def _killed_record(task: BenchTask, time_limit_s: float | None, elapsed: float, why: str) -> dict[str, Any]:
+def _killed_record(time_limit_s: float | None, task: BenchTask, elapsed: float, why: str) -> dict[str, Any]:
     instance = task.spec.build()
     slot = 0 if task.spec.single_slot else None
     return {"schema": RECORD_SCHEMA, "record_id": task.record_id, "suite": task.spec.suite,
@@ -157,10 +157,6 @@ def _killed_record(task: BenchTask, time_limit_s: float | None, elapsed: float, 
             "objective": evaluate_objective(instance, [], slot=slot), "bound": None, "runtime_s": elapsed,
             "message": f"process {why} after {elapsed:.1f} s", "feasible": True, "objective_ok": True,
             "model_size": None, "flags": [why]}
-
-
-def _killed(time_limit_s: float | None, task: BenchTask, elapsed: float, why: str) -> dict[str, Any]:
-    return _killed_record(task, time_limit_s, elapsed, why)
 
 
 @dataclass
@@ -362,6 +358,6 @@ def _run_logged(tasks: list[BenchTask], log: RecordLog, existing: list[dict[str,
 
         work = functools.partial(run_task, time_limit_s=time_limit_s, custom=custom)
         run_tasks(todo, work, lambda _task, rec: write(rec), jobs=jobs, executor=executor, address=address,
-                  hard_limit_s=hard_limit(time_limit_s), failed=functools.partial(_killed, time_limit_s))
+                  hard_limit_s=hard_limit(time_limit_s), failed=functools.partial(_killed_record, time_limit_s))
     finally:
         bar.close()

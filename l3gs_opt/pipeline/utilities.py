@@ -108,8 +108,8 @@ class SplatUtility:
         return scene
 
     def splat_values(self, prepared: Any, cameras: Sequence[Camera], *, held: np.ndarray | None = None) -> np.ndarray:
-        """Mean value of each splat over ``cameras`` (float64 [N], >= 0)."""
-        raise NotImplementedError
+        """Mean value of each splat over ``cameras`` (float64 [N], >= 0). Every utility defines it."""
+        raise NotImplementedError(f"utility {self.name or type(self).__name__!r}: define splat_values")
 
     def chunk_values(self, prepared: Any, cameras: Sequence[Camera], chunks: Sequence[np.ndarray], *,
                      held: np.ndarray | None = None) -> np.ndarray:
@@ -148,16 +148,18 @@ class Eq1Utility(SplatUtility):
 
 
 class VisibilityUtility(SplatUtility):
-    """Blending weight summed over the picture; ``held_aware=True`` is ``visibility-held``."""
+    """Blending weight summed over the picture; ``held_aware=True`` is ``visibility-held``.
+    Subclasses name themselves with ``kind``."""
 
     unit = "pixels"
+    kind = ""
 
     def __init__(self, *, scale: float = DEFAULT_SCALE, held_aware: bool = False):
         if not 0.0 < float(scale) <= 1.0:
             raise UtilityNameError(f"scale = {scale!r}: must be in (0, 1]")
         self.scale = float(scale)
-        self.held_aware = bool(held_aware)
-        self.name = "visibility-held" if held_aware else "visibility"
+        self.held_aware = bool(held_aware) or type(self).held_aware
+        self.name = self.kind or ("visibility-held" if self.held_aware else "visibility")
 
     def prepare(self, scene: SplatScene) -> Any:
         from l3gs_opt.renderer.weights import WeightScene
@@ -188,9 +190,7 @@ class PrefixVisibilityUtility(VisibilityUtility):
     except its own object's higher layers (which arrive after it). Held-free; layered scenes
     (without object or layer labels it is ``visibility``)."""
 
-    def __init__(self, *, scale: float = DEFAULT_SCALE):
-        super().__init__(scale=scale)
-        self.name = "visibility-prefix"
+    kind = "visibility-prefix"
 
     def prepare(self, scene: SplatScene) -> Any:
         n = scene.num_splats
@@ -242,17 +242,20 @@ class ScenePictures:
         return np.clip(render_scene(self.scene.subset(rows), camera).image.numpy().astype(np.float64), 0.0, 1.0)
 
 
-class CoverageUtility(VisibilityUtility):
-    """``visibility-held`` weighted per pixel by the held picture's colour error."""
+class _PictureUtility(VisibilityUtility):
+    """A held-aware utility that also renders the scene: prepared as :class:`ScenePictures`."""
 
-    unit = "pixels x colour error"
-
-    def __init__(self, *, scale: float = DEFAULT_SCALE):
-        super().__init__(scale=scale, held_aware=True)
-        self.name = "coverage"
+    held_aware = True
 
     def prepare(self, scene: SplatScene) -> Any:
         return ScenePictures(scene, super().prepare(scene))
+
+
+class CoverageUtility(_PictureUtility):
+    """``visibility-held`` weighted per pixel by the held picture's colour error."""
+
+    unit = "pixels x colour error"
+    kind = "coverage"
 
     def splat_values(self, prepared: Any, cameras: Sequence[Camera], *, held: np.ndarray | None = None) -> np.ndarray:
         held = _check_held(held, prepared.num_splats)
@@ -267,17 +270,11 @@ class CoverageUtility(VisibilityUtility):
         return np.mean(out, axis=0)
 
 
-class CounterfactualUtility(VisibilityUtility):
+class CounterfactualUtility(_PictureUtility):
     """Measured SSIM gain of adding each chunk alone to what is held (reference; slow)."""
 
     unit = "SSIM"
-
-    def __init__(self, *, scale: float = DEFAULT_SCALE):
-        super().__init__(scale=scale, held_aware=True)
-        self.name = "counterfactual"
-
-    def prepare(self, scene: SplatScene) -> Any:
-        return ScenePictures(scene, super().prepare(scene))
+    kind = "counterfactual"
 
     def splat_values(self, prepared: Any, cameras: Sequence[Camera], *, held: np.ndarray | None = None) -> np.ndarray:
         return super().splat_values(prepared.weights, cameras, held=held)

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from l3gs_opt.pipeline.utilities import SplatUtility
 from l3gs_opt.simulator.catalog import Catalog
 from l3gs_opt.simulator.config import SimulationError
 
@@ -75,7 +76,7 @@ class Valuation:
             got = np.mean([self._table(cat).lookup(c) for c in cams], axis=0)
             cells = np.zeros((J, L))
             cells[:got.shape[0], :got.shape[1]] = got[:J, :L]
-        elif type(self.utility).chunk_values is not _base_chunk_values():
+        elif type(self.utility).chunk_values is not SplatUtility.chunk_values:   # its own chunk values
             cams = self.sim.prediction(t)["cameras"]
             by_cell = np.argsort(cat.unit_of_row, kind="stable")
             ends = np.cumsum(np.bincount(cat.unit_of_row, minlength=J * L))
@@ -144,8 +145,3 @@ class Valuation:
             u_rows = u_rows * (f if k % len(cat.forms) == 1 else 1.0 - f)
         return rows[np.argsort(-u_rows, kind="stable")]
 
-
-def _base_chunk_values():
-    from l3gs_opt.pipeline.utilities import SplatUtility
-
-    return SplatUtility.chunk_values
