@@ -22,7 +22,8 @@ __version__ = "0.1.0"
 # in torch, which a user who only solves instances should not wait for.
 _LAZY = {
     "traces.bandwidth": ["TraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace", "mbps_to_bytes",
-               "synthetic_bandwidth"],
+               "synthetic_bandwidth", "AmbiguousTraceError", "TRACE_FORMATS", "detect_format", "write_mahimahi"],
+    "traces.eyenavgs": ["EyeNavError", "EyeNavTrace", "SceneAlignment", "read_eyenavgs", "read_scene_settings"],
     "pipeline.synth": ["synth_instance", "walking_viewer"],
     "traces.predictors": ["PredictionError", "predict_viewport", "viewport_errors", "predict_bandwidth",
                    "bandwidth_errors"],
@@ -47,7 +48,11 @@ _LAZY = {
     "scene.camera_paths": ["orbit_path", "walk_path"],
     "scene.bundle": ["BUNDLE_SCHEMA", "VARIANTS", "BundleError", "Bundle", "read_bundle", "write_bundle", "split_layers"],
     "pipeline.build": ["BuildError", "BuildSchedule", "build_bundle"],
-    "scene.segment": ["segment_scene"],
+    "scene.segment": ["segment_scene", "segment_labels", "adjusted_rand_index"],
+    # Scene files by extension (.ply, .compressed.ply, .splat, .spz) and the streamable bundle (issue 22).
+    "scene.scene_files": ["SCENE_FORMATS", "read_scene", "write_scene"],
+    "scene.stream_index": ["StreamError", "StreamIndex", "export_stream", "read_stream", "load_stream_chunk",
+                           "stream_bundle"],
     "pipeline.scene_instance": ["instance_from_bundle"],
     "simulator.link": ["LinkError", "Link", "SlotDelivery", "max_min_shares", "split_bytes"],
     "simulator.simulation": ["SimulationError", "SimConfig", "Simulation", "SimulationResult", "SIM_METHODS"],

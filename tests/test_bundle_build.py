@@ -125,3 +125,32 @@ def test_pruned_base_layer_is_the_separate_first_version(setup):
     assert [lv["cumulative_splats"] for lv in lay.manifest["levels"]] == SIZES
     with pytest.raises(BuildError, match="layered_base = 'x'"):
         BuildSchedule(layered_base="x")
+
+
+def test_cli_build_without_cameras_segments_and_samples(setup, capsys):
+    """A teacher given alone, as users have one: ids from segmentation, cameras sampled around it,
+    in a compressed format."""
+    tmp, scene, _ = setup
+    from l3gs_opt.scene.scene_files import write_scene
+
+    import dataclasses
+
+    write_scene(dataclasses.replace(scene, object_ids=None), tmp / "t.spz")
+    assert _cli("scene", "build", tmp / "t.spz", "--layers", "10,30", "--objects", "3", "--views", "4",
+                "--size", "32x24", "--out", tmp / "alone", "--max-width", "24", "--no-progress") == 0
+    out = capsys.readouterr().out
+    assert "segmented the teacher into 3 objects" in out and "4 cameras sampled outside" in out
+    m = read_bundle(tmp / "alone").manifest
+    assert m["segmented"] and sorted(m["objects"]) == [0, 1, 2] and m["build"]["cameras"] == 4
+    assert m["build"]["train_resolution"] == [24, 18]
+
+
+def test_cli_convert_round_trip(setup, capsys):
+    tmp, scene, _ = setup
+    from l3gs_opt.scene.scene_files import read_scene
+
+    assert _cli("scene", "convert", tmp / "t.ply", tmp / "c.compressed.ply") == 0
+    assert "object ids and layers are not kept" in capsys.readouterr().out
+    assert _cli("scene", "convert", tmp / "c.compressed.ply", tmp / "back.ply") == 0
+    back = read_scene(tmp / "back.ply")
+    assert back.num_splats == scene.num_splats and back.object_ids is None

@@ -104,9 +104,9 @@ def test_bad_files(tmp_path):
         load_cameras(tmp_path / "nope.json")
     with pytest.raises(CameraError, match="no COLMAP model"):
         read_colmap(tmp_path)
-    (tmp_path / "cameras.txt").write_text("1 OPENCV 10 10 1 1 5 5 0 0 0 0\n")
+    (tmp_path / "cameras.txt").write_text("1 OPENCV_FISHEYE 10 10 1 1 5 5 0 0 0 0\n")
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 1 a.png\n\n")
-    with pytest.raises(CameraError, match="OPENCV is not supported"):
+    with pytest.raises(CameraError, match="OPENCV_FISHEYE is not supported"):
         read_colmap(tmp_path)
     folder = write_colmap(_cams(), tmp_path / "bin", binary=True)
     raw = (folder / "images.bin").read_bytes()

@@ -353,6 +353,9 @@ def build_parser() -> argparse.ArgumentParser:
     from l3gs_opt.cli.experiments import register as register_experiments
 
     register_experiments(sub)
+    from l3gs_opt.cli.bundle import register as register_bundle
+
+    register_bundle(sub)   # bundle export|info: the streamable chunk index
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")

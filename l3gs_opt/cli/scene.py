@@ -1,4 +1,4 @@
-"""CLI subcommands for scenes and rendering: ``render``, ``scene make|info|segment|build``.
+"""CLI subcommands for scenes and rendering: ``render``, ``scene make|info|segment|build|convert``.
 
 Wire into the main parser with ``register(subparsers)``; each subcommand sets ``func`` to a
 handler ``handler(args) -> int``.  Bad input raises :class:`l3gs_opt.errors.L3gsError`
@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import time
 from pathlib import Path
 
 from l3gs_opt.scene.cameras import CameraError
@@ -22,12 +23,14 @@ class OutputError(L3gsError, ValueError):
     """An output path the CLI cannot write (e.g. an image suffix other than .png / .npy)."""
 
 
-def load_any_cameras(path) -> list:
+def load_any_cameras(path, *, size=None) -> list:
     """Cameras from a camera JSON, a ``transforms.json`` (has ``frames``) or a COLMAP model folder
-    (:func:`l3gs_opt.scene.cameras.load_any_cameras`)."""
+    (:func:`l3gs_opt.scene.cameras.load_any_cameras`); ``size`` = ``(width, height)`` in pixels
+    is the size of a file without one and rescales the others."""
     from l3gs_opt.scene.cameras import load_any_cameras as load
 
-    return load(path)
+    width, height = size if size is not None else (None, None)
+    return load(path, width=width, height=height)
 
 
 def save_image(image, path) -> Path:
@@ -63,13 +66,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import time
 
     from l3gs_opt.renderer.render import render_scene
-    from l3gs_opt.scene.splats import read_ply
+    from l3gs_opt.scene.cameras import parse_image_size
+    from l3gs_opt.scene.scene_files import read_scene
 
     out = Path(args.out)
     if out.suffix.lower() not in (".png", ".npy"):
         raise OutputError(f"--out: {out.name} must end in .png or .npy")
-    scene = read_ply(args.scene, ignore_unknown=args.ignore_unknown_properties)
-    cams = load_any_cameras(args.camera)
+    size = parse_image_size(args.size, field="--size") if args.size is not None else None
+    scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    cams = load_any_cameras(args.camera, size=size)
     if not -len(cams) <= args.index < len(cams):
         raise CameraError(f"--index: {args.index} out of range ({args.camera} holds {len(cams)} cameras)")
     cam = cams[args.index]
@@ -107,9 +112,10 @@ def _cmd_scene_make(args: argparse.Namespace) -> int:
 def _cmd_scene_info(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from l3gs_opt.scene.splats import bytes_per_splat, read_ply
+    from l3gs_opt.scene.scene_files import read_scene
+    from l3gs_opt.scene.splats import bytes_per_splat
 
-    scene = read_ply(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
     info = {"file": str(args.scene), "file_bytes": Path(args.scene).stat().st_size,
             "splats": scene.num_splats, "sh_degree": scene.sh_degree,
             "bytes_per_splat": bytes_per_splat(scene.sh_degree),
@@ -150,44 +156,98 @@ def _parse_sizes(text: str) -> list:
     return out
 
 
+def _parse_objects(text: str):
+    """``auto`` or a whole number; anything else is left to the library's named check."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
 def _cmd_scene_segment(args: argparse.Namespace) -> int:
-    import numpy as np
+    from l3gs_opt.scene.scene_files import read_scene, write_scene
+    from l3gs_opt.scene.segment import object_counts, segment_scene
 
-    from l3gs_opt.scene.splats import read_ply, write_ply
-    from l3gs_opt.scene.segment import segment_scene
-
-    scene = read_ply(args.scene, ignore_unknown=args.ignore_unknown_properties)
-    out = segment_scene(scene, args.objects, seed=args.seed)
-    path = write_ply(out, args.out)
-    counts = np.bincount(out.object_ids, minlength=args.objects).tolist()
-    print(f"wrote {path}: {out.num_splats} splats in {args.objects} objects (k-means on the means), "
-          f"splats per object {counts}")
+    scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    t0 = time.perf_counter()
+    out = segment_scene(scene, _parse_objects(args.objects), method=args.method, planes=args.planes,
+                        background=args.background, seed=args.seed)
+    dt = time.perf_counter() - t0
+    path = write_scene(out, args.out)
+    print(f"wrote {path}: {out.num_splats} splats in {out.num_objects} objects ({args.method}, "
+          f"{args.planes} planes{', background' if args.background else ''}; {dt:.1f} s), "
+          f"splats per object {object_counts(out)}")
     return 0
 
 
 def _cmd_scene_build(args: argparse.Namespace) -> int:
     from l3gs_opt.pipeline.build import DEFAULT, QUICK, build_bundle
+    from l3gs_opt.scene.cameras import parse_image_size
 
-    cams = load_any_cameras(args.cameras)
+    size = parse_image_size(args.size, field="--size") if args.size is not None else None
     schedule = QUICK if args.quick else DEFAULT
     if args.max_width is not None:
         import dataclasses
 
         schedule = dataclasses.replace(schedule, max_width=args.max_width)
-    res = build_bundle(args.teacher, cams, _parse_sizes(args.layers), args.variant, args.out, schedule=schedule,
+    teacher = args.teacher
+    if args.objects is not None or args.cameras is None:
+        from l3gs_opt.scene.scene_files import read_scene
+
+        teacher = read_scene(args.teacher, ignore_unknown=args.ignore_unknown_properties)
+    if args.objects is not None:
+        from l3gs_opt.scene.segment import object_counts, segment_scene
+
+        t0 = time.perf_counter()
+        teacher = segment_scene(teacher, _parse_objects(args.objects), planes=args.planes,
+                                background=args.background, seed=args.seed)
+        print(f"segmented the teacher into {teacher.num_objects} objects in {time.perf_counter() - t0:.1f} s: "
+              f"splats per object {object_counts(teacher)}")
+    if args.cameras is not None:
+        cams = load_any_cameras(args.cameras, size=size)
+    else:
+        from l3gs_opt.scene.camera_sampling import sample_cameras
+
+        w, h = size or (schedule.max_width, max(1, round(schedule.max_width * 3 / 4)))
+        cams = sample_cameras(teacher, args.views, mode=args.camera_mode, width=w, height=h, seed=args.seed)
+        print(f"no --cameras: {len(cams)} cameras sampled {args.camera_mode} the scene, {w}x{h}")
+    res = build_bundle(teacher, cams, _parse_sizes(args.layers), args.variant, args.out, schedule=schedule,
                        resume=args.resume, show_progress=not args.no_progress, log=print)
     print(f"total {res.total_seconds:.1f} s (load {os.getloadavg()[0]:.2f})")
+    return 0
+
+
+def _cmd_scene_convert(args: argparse.Namespace) -> int:
+    from l3gs_opt.scene.scene_files import read_scene, scene_format, write_scene
+
+    fmt_out = scene_format(args.out)   # an unknown output extension fails before the input is read
+    t0 = time.perf_counter()
+    scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    path = write_scene(scene, args.out)
+    size_in, size_out = Path(args.scene).stat().st_size, path.stat().st_size
+    n = max(scene.num_splats, 1)
+    print(f"wrote {path}: {scene!r} as {fmt_out.description}; {size_in:,} -> {size_out:,} bytes "
+          f"({size_in / n:.1f} -> {size_out / n:.1f} bytes a splat), {time.perf_counter() - t0:.2f} s")
+    if not fmt_out.keeps_ids and (scene.object_ids is not None or scene.layers is not None):
+        print("note: object ids and layers are not kept by this format")
     return 0
 
 
 def register(subparsers) -> None:
     """Add ``render`` and ``scene`` (``make``, ``info``, ``segment``, ``build``) to an argparse subparsers object."""
     p = subparsers.add_parser("render", help="render a splat scene (.ply) from a camera to .png or .npy")
-    p.add_argument("scene", help="scene PLY file (reference 3DGS layout)")
+    p.add_argument("scene", help="scene file (.ply, .compressed.ply, .splat, .spz)")
     p.add_argument("--camera", required=True,
                    help="camera JSON (object or list), NeRF/Blender transforms.json, or COLMAP sparse folder")
     p.add_argument("--out", required=True, help="output image: .png (8-bit) or .npy (float32 HxWx3, unclipped)")
     p.add_argument("--index", type=int, default=0, help="camera index when the file holds several (default 0)")
+    p.add_argument("--size", metavar="WxH", default=None,
+                   help="image size in pixels, e.g. 800x800: needed for NeRF-synthetic transforms.json files, "
+                        "which have camera_angle_x but no w/h; a camera file with its own size is rescaled "
+                        "to it (fx, cx scale with the width, fy, cy with the height; the aspect ratio must "
+                        "stay, up to rounding)")
     p.add_argument("--background", type=_parse_rgb, default=None, help="override the background, r,g,b in [0, 1]")
     p.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=None,
                    help="render with SH degrees up to this only")
@@ -212,29 +272,56 @@ def register(subparsers) -> None:
     m.add_argument("--background", type=_parse_rgb, default=None, help="camera background r,g,b (default black)")
     m.set_defaults(func=_cmd_scene_make)
     i = ssub.add_parser("info", help="print a scene's size, SH degree, objects and layers")
-    i.add_argument("scene", help="scene PLY file")
+    i.add_argument("scene", help="scene file (.ply, .compressed.ply, .splat, .spz)")
     i.add_argument("--json", action="store_true", help="print one JSON object")
     i.add_argument("--ignore-unknown-properties", action="store_true",
                    help="skip unknown PLY vertex properties instead of failing")
     i.set_defaults(func=_cmd_scene_info)
-    g = ssub.add_parser("segment", help="assign object ids to a scene by k-means on the splat centres (scipy)")
-    g.add_argument("scene", help="scene PLY file")
-    g.add_argument("--objects", type=int, required=True, help="number of objects (clusters)")
+    g = ssub.add_parser("segment", help="give a scene object ids from its splat centres (connected components or "
+                                        "k-means, optional floor/wall planes and far background)")
+    g.add_argument("scene", help="scene file (.ply, .compressed.ply, .splat, .spz)")
+    g.add_argument("--objects", default="auto",
+                   help="number of objects, or 'auto' (default): as many as the scene's separate parts (at most 32)")
+    g.add_argument("--method", default="components", choices=["components", "kmeans"],
+                   help="how the splats left after planes and background are grouped (default components)")
+    g.add_argument("--planes", type=int, default=0,
+                   help="dominant planes split off first as objects (floor, walls: e.g. 1 or 6; default 0)")
+    g.add_argument("--background", action="store_true", help="split the far background off as one object")
     g.add_argument("--out", required=True, help="output PLY file (with object_id)")
     g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     g.add_argument("--ignore-unknown-properties", action="store_true",
                    help="skip unknown PLY vertex properties instead of failing")
     g.set_defaults(func=_cmd_scene_segment)
     b = ssub.add_parser("build", help="train a layered / separate / sort / distill / hierarchy bundle from a teacher")
-    b.add_argument("teacher", help="teacher scene PLY (reference 3DGS layout)")
-    b.add_argument("--cameras", required=True,
-                   help="training cameras: camera JSON list, NeRF/Blender transforms.json or COLMAP folder")
+    b.add_argument("teacher", help="teacher scene (.ply, .compressed.ply, .splat, .spz)")
+    b.add_argument("--cameras", default=None,
+                   help="training cameras: camera JSON list, NeRF/Blender transforms.json or COLMAP folder; "
+                        "without it, --views cameras are sampled around the scene (--camera-mode)")
+    b.add_argument("--size", default=None, metavar="WxH",
+                   help="image size of the cameras (a transforms.json without w/h; sampled cameras)")
+    b.add_argument("--views", type=int, default=32, help="sampled cameras when no --cameras (default 32)")
+    b.add_argument("--camera-mode", default="outside", choices=["outside", "inside"],
+                   help="sampled cameras on a sphere around the scene (objects) or inside it (rooms)")
     b.add_argument("--layers", required=True,
                    help="cumulative sizes in splats, increasing, e.g. 45000,90000,135000,180000")
-    b.add_argument("--variant", required=True, choices=["layered", "separate", "sort", "distill", "hierarchy"])
+    b.add_argument("--variant", default="layered", choices=["layered", "separate", "sort", "distill", "hierarchy"],
+                   help="default layered")
+    b.add_argument("--objects", default=None,
+                   help="segment the teacher first: a count or 'auto' (see 'scene segment'); default: keep its ids")
+    b.add_argument("--planes", type=int, default=0, help="with --objects: dominant planes split off first")
+    b.add_argument("--background", action="store_true", help="with --objects: the far background as one object")
+    b.add_argument("--seed", type=int, default=0, help="seed of the segmentation and sampled cameras")
     b.add_argument("--out", required=True, help="bundle directory (manifest.json + chunks/)")
     b.add_argument("--quick", action="store_true", help="small views and short training (demo, CI)")
     b.add_argument("--resume", action="store_true", help="continue an interrupted build from its checkpoints")
     b.add_argument("--max-width", type=int, default=None, help="training view width in pixels (overrides the schedule)")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
+    b.add_argument("--ignore-unknown-properties", action="store_true",
+                   help="skip unknown PLY vertex properties instead of failing")
     b.set_defaults(func=_cmd_scene_build)
+    c = ssub.add_parser("convert", help="convert a scene between .ply, .compressed.ply, .splat and .spz (by extension)")
+    c.add_argument("scene", help="input scene file")
+    c.add_argument("out", help="output scene file; its extension picks the format")
+    c.add_argument("--ignore-unknown-properties", action="store_true",
+                   help="skip unknown PLY vertex properties instead of failing")
+    c.set_defaults(func=_cmd_scene_convert)

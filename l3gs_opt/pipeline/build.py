@@ -48,6 +48,7 @@ import numpy as np
 from l3gs_opt.scene.bundle import REPRESENTATION, VARIANTS, split_layers, write_bundle
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_json
+from l3gs_opt.scene.scene_files import read_scene
 from l3gs_opt.scene.splats import SceneError, SplatScene, ply_property, read_ply, write_ply
 
 __all__ = ["BuildError", "BuildSchedule", "QUICK", "DEFAULT", "BuildResult", "build_bundle", "scale_camera",
@@ -272,12 +273,13 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
         raise BuildError("--cameras: no cameras")
     if isinstance(teacher, (str, Path)):
         teacher_path = Path(teacher)
-        scene = read_ply(teacher_path)
+        scene = read_scene(teacher_path)
         ident = {"teacher": str(teacher_path), "teacher_sha256": _digest(teacher_path)}
     else:
         scene = teacher
-        ident = {"teacher": "<in memory>", "teacher_sha256": hashlib.sha256(scene.means.tobytes()
-                                                                            + scene.sh.tobytes()).hexdigest()}
+        ids = scene.object_ids.tobytes() if scene.object_ids is not None else b""
+        ident = {"teacher": "<in memory>", "teacher_sha256": hashlib.sha256(scene.means.tobytes() + scene.sh.tobytes()
+                                                                            + ids).hexdigest()}
     check_trainable(scene)
     sizes = check_sizes(sizes, scene.num_splats, field="--layers")
     out = Path(out)

@@ -1,6 +1,6 @@
 """Pinhole cameras (OpenCV convention) and their file formats.
 
-Length (~650 lines): the camera type and the four file formats it is read from and written to
+Length (~1000 lines): the camera type, the four file formats it is read from and written to
 (camera JSON, NeRF ``transforms.json``, COLMAP text and binary), each validated field by field.
 
 Convention (the standard 3DGS one): camera axes x right, y down, z forward; a world point
@@ -15,9 +15,25 @@ Formats read and written here:
   ``cx``, ``cy``, ``world_to_camera`` (4x4 nested list) and optional ``background`` ``[r, g, b]``
   and ``name``; or a list of such objects (a camera path).  Unknown keys are an error.
 * **COLMAP sparse model** (``cameras.txt``/``images.txt`` or ``cameras.bin``/``images.bin``):
-  PINHOLE and SIMPLE_PINHOLE cameras (undistorted, as 3DGS requires).
+  PINHOLE and SIMPLE_PINHOLE cameras, and SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV ones under
+  the distortion rule below; fisheye and FOV models are refused.
 * **NeRF / Blender ``transforms.json``**: OpenGL camera-to-world matrices (x right, y up,
-  z backward), converted to OpenCV world-to-camera.
+  z backward), converted to OpenCV world-to-camera; intrinsics, size and distortion
+  (``k1``-``k4``, ``p1``, ``p2``) from the file or, nerfstudio style, from each frame.
+
+**Lens distortion** (one rule for COLMAP and ``transforms.json``): the renderer is a pinhole, so
+distortion is dropped, and what that costs is measured by :func:`max_distortion_px`, the largest
+displacement (pixels) the distortion model applies over the camera's image.  Zero distortion is
+accepted silently; up to :data:`MAX_DROPPED_DISTORTION_PX` it is accepted with a
+:class:`DistortionWarning` that states the error; above it the camera is refused with a
+:class:`CameraError` naming the file, the camera or frame and the coefficients, and asking for
+undistorted images (COLMAP's ``image_undistorter``).
+
+**Image size**: every loader takes ``width=``/``height=`` (the command line's ``--size WxH``,
+parsed by :func:`parse_image_size`).  A file without a size (the NeRF synthetic
+``transforms_*.json``, 800 x 800 images) takes it as its size; a file with one is rescaled to it by
+:meth:`Camera.resized` (``fx``, ``cx`` scale by the width ratio, ``fy``, ``cy`` by the height
+ratio; the aspect ratio must stay, up to rounding).
 
 Every file is read through :mod:`l3gs_opt.input_files` (regular files only, sizes limited, strict
 JSON). A camera is refused by name before any image is allocated when its size exceeds
@@ -32,7 +48,9 @@ import io
 import json
 import math
 import numbers
+import re
 import struct
+import warnings
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -42,9 +60,10 @@ from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import check_regular_file, read_json, read_text
 from l3gs_opt.traces.bandwidth import iter_lines
 
-__all__ = ["CameraError", "Camera", "load_cameras", "load_camera", "load_any_cameras", "save_cameras",
-           "camera_to_dict", "camera_from_dict", "read_colmap", "write_colmap",
-           "read_blender", "write_blender", "look_at", "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX"]
+__all__ = ["CameraError", "DistortionWarning", "Camera", "load_cameras", "load_camera", "load_any_cameras",
+           "save_cameras", "camera_to_dict", "camera_from_dict", "read_colmap", "write_colmap",
+           "read_blender", "write_blender", "look_at", "parse_image_size", "max_distortion_px",
+           "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX", "MAX_DROPPED_DISTORTION_PX"]
 
 #: Longest image side (pixels). Renders are allocated per pixel; 16k covers every real sensor.
 MAX_IMAGE_SIDE = 16384
@@ -58,11 +77,26 @@ MAX_FOCAL_PX = 1e9
 #: rotations in float32 or as rounded decimals; a true scale or shear is far larger).
 ROTATION_TOL = 1e-4
 
+#: Largest lens distortion (pixels, over the whole image) dropped with a warning rather than refused.
+#: Half a pixel is as far as rounding to the pixel grid already moves a point, so below it a
+#: pinhole render is as faithful as the grid allows; more visibly misregisters renders against
+#: the photographs (and training fits splats to the distorted geometry).
+MAX_DROPPED_DISTORTION_PX = 0.5
+#: Samples per image side at which :func:`max_distortion_px` evaluates the distortion (edges and
+#: corners included): the displacement is a smooth low-order function of the position, so 65 x 65
+#: points bound it to far below :data:`MAX_DROPPED_DISTORTION_PX`'s precision.
+DISTORTION_SAMPLES = 65
+
 _JSON_KEYS = {"width", "height", "fx", "fy", "cx", "cy", "world_to_camera", "background", "name"}
 
 
 class CameraError(L3gsError, ValueError):
     """A camera or camera file is malformed; the message names the field (and camera index)."""
+
+
+class DistortionWarning(UserWarning):
+    """A camera's lens distortion was dropped (the renderer is a pinhole); the message states the
+    largest pixel error it causes, below :data:`MAX_DROPPED_DISTORTION_PX`."""
 
 
 def _camera_error(field: str, message: str) -> CameraError:
@@ -78,6 +112,51 @@ def _whole_number(v: Any) -> Optional[int]:
     if isinstance(v, numbers.Real) and math.isfinite(v) and float(v).is_integer():
         return int(v)
     return None
+
+
+def _check_size(width: Any, height: Any, field: str) -> tuple[int, int]:
+    """``(width, height)`` as ints after the limits every camera obeys; ``field`` names them."""
+    out = []
+    for key, v in (("width", width), ("height", height)):
+        n = _whole_number(v)
+        if n is None or not 0 < n <= MAX_IMAGE_SIDE:
+            raise CameraError(f"{field}: {key} {v!r} must be a positive integer <= {MAX_IMAGE_SIDE} (MAX_IMAGE_SIDE)")
+        out.append(n)
+    if out[0] * out[1] > MAX_IMAGE_PIXELS:
+        raise CameraError(f"{field}: {out[0]} x {out[1]} = {out[0] * out[1]:,} pixels, more than "
+                          f"{MAX_IMAGE_PIXELS:,} (MAX_IMAGE_PIXELS)")
+    return out[0], out[1]
+
+
+def _optional_size(width: Any, height: Any) -> Optional[tuple[int, int]]:
+    """The ``width=``/``height=`` options of the loaders: both or neither."""
+    if width is None and height is None:
+        return None
+    if width is None or height is None:
+        raise CameraError(f"size: width={width!r}, height={height!r}: give both or neither")
+    return _check_size(width, height, "size")
+
+
+# ASCII digits only (\d would take other scripts' digits), no sign, no leading zero
+_SIZE_RE = re.compile(r"([1-9][0-9]{0,15})[xX]([1-9][0-9]{0,15})")
+
+
+def parse_image_size(text: str, *, field: str = "--size") -> tuple[int, int]:
+    """Parse ``WxH`` (e.g. ``800x800``) into ``(width, height)`` in pixels.
+
+    Strict: two positive whole numbers without sign, spaces or leading zeros, joined by ``x``
+    (or ``X``); each at most :data:`MAX_IMAGE_SIDE`, their product at most
+    :data:`MAX_IMAGE_PIXELS`.
+
+    Raises
+    ------
+    CameraError
+        Naming ``field`` and the text, e.g. ``--size: '0x5' must be WxH ...``.
+    """
+    m = _SIZE_RE.fullmatch(text) if isinstance(text, str) else None
+    if m is None:
+        raise CameraError(f"{field}: {text!r} must be WxH, two positive whole numbers of pixels such as 800x800")
+    return _check_size(int(m.group(1)), int(m.group(2)), f"{field} {text}")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -195,6 +274,35 @@ class Camera:
         """Return a copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same view for an image of ``width`` x ``height`` pixels.
+
+        ``fx`` and ``cx`` scale by ``width / self.width``, ``fy`` and ``cy`` by
+        ``height / self.height``: pixel edges 0 and ``self.width`` map to 0 and ``width``, which
+        in this convention (pixel ``i`` covers ``[i, i + 1)``) is exact, without half-pixel terms.
+        The aspect ratio must stay up to rounding: some scale ``s`` has
+        ``|s self.width - width| <= 0.5`` and ``|s self.height - height| <= 0.5``; a stretched
+        view is refused as a likely mistake (build the camera by hand for that).
+
+        Raises
+        ------
+        CameraError
+            On a size outside the camera limits or one that changes the aspect ratio.
+        """
+        width, height = _check_size(width, height, "size")
+        if (width, height) == (self.width, self.height):
+            return self
+        lo = max((width - 0.5) / self.width, (height - 0.5) / self.height)
+        hi = min((width + 0.5) / self.width, (height + 0.5) / self.height)
+        if lo > hi:
+            keep = max(1, round(self.height * width / self.width))
+            raise CameraError(f"size: {width}x{height} changes the aspect ratio of the camera's "
+                              f"{self.width}x{self.height} image; give a size of the same shape, "
+                              f"e.g. {width}x{keep}")
+        sx, sy = width / self.width, height / self.height
+        return self.replace(width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
+                            cx=self.cx * sx, cy=self.cy * sy)
+
     def __repr__(self) -> str:
         return (f"Camera({self.width}x{self.height}, fx={self.fx:.2f}, fy={self.fy:.2f}, "
                 f"cx={self.cx:.2f}, cy={self.cy:.2f}, center={np.round(self.center, 3).tolist()})")
@@ -289,16 +397,40 @@ def load_cameras(path) -> list[Camera]:
     return _cameras_from_json(_read_camera_json(path), path)
 
 
-def load_any_cameras(path) -> list[Camera]:
+def load_any_cameras(path, *, width: Optional[int] = None, height: Optional[int] = None) -> list[Camera]:
     """Cameras from a camera JSON, a ``transforms.json`` (an object with ``frames``) or a COLMAP
-    model folder; the file is read once."""
+    model folder; the file is read once.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file or COLMAP folder.
+    width, height : int, optional
+        Image size in pixels, both or neither: the size of a ``transforms.json`` without
+        ``w``/``h``; every other camera is rescaled to it (:meth:`Camera.resized`).
+
+    Raises
+    ------
+    CameraError
+        As the format's reader; a size that changes a camera's aspect ratio.
+    """
     path = Path(path)
     if path.is_dir():
-        return read_colmap(path)
+        return read_colmap(path, width=width, height=height)
+    size = _optional_size(width, height)
     obj = _read_camera_json(path)
     if isinstance(obj, dict) and "frames" in obj:
-        return _blender_from_json(obj, path)
-    return _cameras_from_json(obj, path)
+        return _blender_from_json(obj, path, width=width, height=height)
+    cams = _cameras_from_json(obj, path)
+    if size is None:
+        return cams
+    out = []
+    for i, cam in enumerate(cams):
+        try:
+            out.append(cam.resized(*size))
+        except CameraError as exc:
+            raise CameraError(f"{path.name}[{i}]: {exc}") from None
+    return out
 
 
 def load_camera(path, index: int = 0) -> Camera:
@@ -316,6 +448,113 @@ def save_cameras(cameras: Camera | Sequence[Camera], path) -> Path:
     obj = camera_to_dict(cameras) if isinstance(cameras, Camera) else [camera_to_dict(c) for c in cameras]
     path.write_text(json.dumps(obj, indent=1))
     return path
+
+
+# ---------------------------------------------------------------------- lens distortion
+def max_distortion_px(width: int, height: int, fx: float, fy: float, cx: float, cy: float, *,
+                      radial: Sequence[float] = (), tangential: Sequence[float] = (0.0, 0.0),
+                      rational: Sequence[float] = ()) -> float:
+    """Largest displacement (pixels) an OpenCV-style lens distortion applies over an image.
+
+    A pinhole pixel position ``(u, v)`` has normalised coordinates ``x = (u - cx) / fx``,
+    ``y = (v - cy) / fy``, ``r^2 = x^2 + y^2``; the distortion moves it to
+
+    .. math::
+
+        x_d = x \\rho + 2 p_1 x y + p_2 (r^2 + 2 x^2), \\quad
+        y_d = y \\rho + p_1 (r^2 + 2 y^2) + 2 p_2 x y, \\quad
+        \\rho = \\frac{1 + \\sum_i a_i r^{2i}}{1 + \\sum_i b_i r^{2i}}
+
+    (``a`` = ``radial``, ``b`` = ``rational``; COLMAP's and OpenCV's convention).  The result is
+    ``max sqrt((fx (x_d - x))^2 + (fy (y_d - y))^2)`` over a :data:`DISTORTION_SAMPLES` square grid
+    of ``[0, width] x [0, height]`` (edges and corners included): the pixel error of rendering
+    the camera as a pinhole.  It is the forward displacement at the pinhole positions; the
+    displacement at the photograph's own pixels differs from it by second-order terms only.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels.
+    fx, fy, cx, cy : float
+        Focal lengths and principal point in pixels.
+    radial : sequence of float
+        ``a_1, a_2, ...``: coefficients of ``r^2, r^4, ...`` in the numerator (COLMAP's ``k1, k2``,
+        FULL_OPENCV's ``k1, k2, k3``; nerfstudio's ``k1`` .. ``k4``).
+    tangential : sequence of float, length 2
+        ``p1, p2``.
+    rational : sequence of float
+        ``b_1, b_2, ...``: denominator coefficients (FULL_OPENCV's ``k4, k5, k6``).
+
+    Returns
+    -------
+    float
+        Pixels; ``inf`` when the model overflows or divides by zero on the image.
+
+    Examples
+    --------
+    A SIMPLE_RADIAL camera ``f = 100`` on a 200 x 200 image (``cx = cy = 100``) with
+    ``k1 = 0.001``: the corner ``x = y = 1`` moves by ``f k1 r^2 sqrt(2) = 100 * 0.002 * sqrt(2)``:
+
+    >>> round(max_distortion_px(200, 200, 100.0, 100.0, 100.0, 100.0, radial=[0.001]), 6)
+    0.282843
+    """
+    p1, p2 = (float(v) for v in tangential)
+    u = np.linspace(0.0, float(width), DISTORTION_SAMPLES)
+    v = np.linspace(0.0, float(height), DISTORTION_SAMPLES)
+    x, y = np.meshgrid((u - cx) / fx, (v - cy) / fy)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        r2 = x * x + y * y
+        num, den, rk = np.ones_like(r2), np.ones_like(r2), np.ones_like(r2)
+        for a in radial:
+            rk = rk * r2
+            num = num + float(a) * rk
+        rk = np.ones_like(r2)
+        for b in rational:
+            rk = rk * r2
+            den = den + float(b) * rk
+        rho = num / den
+        dx = x * (rho - 1.0) + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        dy = y * (rho - 1.0) + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        err = np.hypot(fx * dx, fy * dy)
+    if not np.all(np.isfinite(err)):
+        return math.inf
+    return float(err.max())
+
+
+def _describe(names: Sequence[str], values: Sequence[float]) -> str:
+    return ", ".join(f"{n}={v:g}" for n, v in zip(names, values))
+
+
+def _check_distortion(cam: Camera, coeffs: dict, where: str, *, radial=(), tangential=(0.0, 0.0),
+                      rational=()) -> Optional[tuple[float, str]]:
+    """Apply the distortion rule to ``cam``: None when undistorted, ``(pixels, description)``
+    when the distortion is small enough to drop, else raise.  ``coeffs`` maps the file's
+    coefficient names to values, for the messages."""
+    bad = [k for k, v in coeffs.items() if not math.isfinite(v)]
+    if bad:
+        raise CameraError(f"{where}: distortion {bad[0]}={coeffs[bad[0]]!r} must be finite")
+    if not any(coeffs.values()):
+        return None
+    err = max_distortion_px(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
+                            radial=radial, tangential=tangential, rational=rational)
+    what = f"{where}: lens distortion {_describe(list(coeffs), list(coeffs.values()))}"
+    if not err <= MAX_DROPPED_DISTORTION_PX:
+        raise CameraError(f"{what} moves pixels by up to {err:.3g} px over the {cam.width}x{cam.height} "
+                          f"image, more than the {MAX_DROPPED_DISTORTION_PX} px a pinhole render may drop "
+                          f"(MAX_DROPPED_DISTORTION_PX); undistort the images first, e.g. COLMAP's "
+                          f"'colmap image_undistorter', which writes PINHOLE cameras")
+    return err, what
+
+
+def _warn_distortion(found: list[tuple[float, str]], source: str) -> None:
+    """One warning for all the small distortions of a file, naming the worst."""
+    if not found:
+        return
+    err, what = max(found, key=lambda f: f[0])
+    many = f" (the worst of {len(found)} distorted cameras)" if len(found) > 1 else ""
+    warnings.warn(f"{what}{many} is dropped: rendered as a pinhole camera, pixels off by up to {err:.3g} px "
+                  f"(<= MAX_DROPPED_DISTORTION_PX = {MAX_DROPPED_DISTORTION_PX} px)", DistortionWarning,
+                  stacklevel=3)
 
 
 # ---------------------------------------------------------------------- COLMAP
@@ -356,14 +595,27 @@ def _rotmat_to_qvec(r: np.ndarray) -> np.ndarray:
     return q if q[0] >= 0 else -q
 
 
-def _intrinsics(model: str, params, where: str) -> tuple[float, float, float, float]:
+def _intrinsics(model: str, params, where: str) -> tuple[tuple[float, float, float, float], dict, dict]:
+    """``((fx, fy, cx, cy), coefficients by name, keyword arguments of max_distortion_px)`` of a
+    COLMAP camera (parameter order from COLMAP's ``src/colmap/sensor/models.h``)."""
+    p = [float(v) for v in params]
     if model == "SIMPLE_PINHOLE":
-        f, cx, cy = params
-        return f, f, cx, cy
+        return (p[0], p[0], p[1], p[2]), {}, {}
     if model == "PINHOLE":
-        return tuple(params)  # fx, fy, cx, cy
-    raise CameraError(f"{where}: camera model {model} is not supported (undistort the images "
-                      f"to PINHOLE first, as 3DGS requires)")
+        return tuple(p), {}, {}
+    if model == "SIMPLE_RADIAL":
+        return (p[0], p[0], p[1], p[2]), {"k": p[3]}, {"radial": p[3:4]}
+    if model == "RADIAL":
+        return (p[0], p[0], p[1], p[2]), {"k1": p[3], "k2": p[4]}, {"radial": p[3:5]}
+    if model == "OPENCV":
+        return (tuple(p[:4]), dict(zip(("k1", "k2", "p1", "p2"), p[4:8])),
+                {"radial": p[4:6], "tangential": p[6:8]})
+    if model == "FULL_OPENCV":
+        return (tuple(p[:4]), dict(zip(("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"), p[4:12])),
+                {"radial": [p[4], p[5], p[8]], "tangential": p[6:8], "rational": p[9:12]})
+    raise CameraError(f"{where}: camera model {model} is not supported: not a pinhole projection, even "
+                      f"without distortion (undistort the images to PINHOLE first, e.g. COLMAP's "
+                      f"'colmap image_undistorter', as 3DGS requires)")
 
 
 def _read_colmap_text(folder: Path):
@@ -457,14 +709,22 @@ def _read_colmap_binary(folder: Path):
     return cams, images
 
 
-def read_colmap(folder, *, background=(0.0, 0.0, 0.0)) -> list[Camera]:
+def read_colmap(folder, *, width: Optional[int] = None, height: Optional[int] = None,
+                background=(0.0, 0.0, 0.0)) -> list[Camera]:
     """Read the cameras of a COLMAP sparse model (text or binary), sorted by image name.
+
+    Camera models: PINHOLE and SIMPLE_PINHOLE; SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV
+    under the module's distortion rule (checked once per camera id, at the model's own image size:
+    zero distortion silently, up to :data:`MAX_DROPPED_DISTORTION_PX` with one
+    :class:`DistortionWarning`, more refused); fisheye and FOV models are refused.
 
     Parameters
     ----------
     folder : str or Path
         Folder holding ``cameras.txt`` + ``images.txt`` or ``cameras.bin`` + ``images.bin``
         (e.g. ``sparse/0``); text is used when both exist.
+    width, height : int, optional
+        Rescale every camera to this image size (pixels; :meth:`Camera.resized`); both or neither.
     background : array_like, shape [3]
         Background colour given to every camera.
 
@@ -477,31 +737,45 @@ def read_colmap(folder, *, background=(0.0, 0.0, 0.0)) -> list[Camera]:
     Raises
     ------
     CameraError
-        Missing or malformed files, an unknown camera id, a distorted camera model.
+        Missing or malformed files, an unknown camera id, a fisheye model, a distortion above
+        :data:`MAX_DROPPED_DISTORTION_PX`, a size that changes the aspect ratio.
     """
     folder = Path(folder)
+    size = _optional_size(width, height)
     if (folder / "cameras.txt").exists() and (folder / "images.txt").exists():
         cams, images = _read_colmap_text(folder)
     elif (folder / "cameras.bin").exists() and (folder / "images.bin").exists():
         cams, images = _read_colmap_binary(folder)
     else:
         raise CameraError(f"{folder}: no COLMAP model (cameras.txt + images.txt or cameras.bin + images.bin)")
-    out = []
+    out, checked, found = [], set(), []
     for name, q, t, cid, where in sorted(images, key=lambda im: im[0]):
         if cid not in cams:
             raise CameraError(f"{where}: camera id {cid} is not in the cameras file")
         model, w, h, params, cwhere = cams[cid]
-        fx, fy, cx, cy = _intrinsics(model, params, cwhere)
+        (fx, fy, cx, cy), coeffs, model_kw = _intrinsics(model, params, f"{folder}: {cwhere}")
         if not np.all(np.isfinite(q)) or not np.any(q):
             raise CameraError(f"{where}: quaternion {q} must be finite and non-zero")
         m = np.eye(4)
         m[:3, :3] = _qvec_to_rotmat(q)
         m[:3, 3] = t
         try:
-            out.append(Camera(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy, world_to_camera=m,
-                              background=background, name=name))
+            cam = Camera(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy, world_to_camera=m,
+                         background=background, name=name)
         except CameraError as exc:
             raise CameraError(f"{where}: {exc}") from None
+        if cid not in checked:  # a camera id is shared by many images: one check, one warning
+            checked.add(cid)
+            small = _check_distortion(cam, coeffs, f"{folder}: {cwhere} (camera id {cid}, {model})", **model_kw)
+            if small:
+                found.append(small)
+        if size is not None:
+            try:
+                cam = cam.resized(*size)
+            except CameraError as exc:
+                raise CameraError(f"{where}: {exc}") from None
+        out.append(cam)
+    _warn_distortion(found, str(folder))
     return out
 
 
@@ -549,16 +823,32 @@ def read_blender(path, *, width: Optional[int] = None, height: Optional[int] = N
     """Read a NeRF / Blender ``transforms.json`` (OpenGL camera-to-world) as OpenCV cameras.
 
     Intrinsics: ``fl_x``/``fl_y``/``cx``/``cy`` when present (instant-ngp style), otherwise
-    ``fx = fy = width / (2 tan(camera_angle_x / 2))`` (``fy`` from ``camera_angle_y`` if
-    given) and the principal point at the image centre.  ``w``/``h`` in the file give the
-    size; otherwise pass ``width`` and ``height`` (the Blender synthetic set is 800 x 800).
+    ``fx = fy = w / (2 tan(camera_angle_x / 2))`` (``fy`` from ``camera_angle_y`` if
+    given) and the principal point at the image centre.  Each of these keys, ``w``/``h``,
+    ``camera_model`` and the distortion ``k1``-``k4``, ``p1``, ``p2`` may also be given per frame
+    (nerfstudio style), where it overrides the file's.  Distortion follows nerfstudio's OpenCV
+    model (``k1`` .. ``k4`` multiply ``r^2`` .. ``r^8``) under the module's distortion rule,
+    checked at the file's own size; a ``camera_model`` other than OPENCV, PINHOLE or
+    SIMPLE_PINHOLE (a fisheye, an equirectangular) is refused.
     Each ``transform_matrix`` ``C`` (x right, y up, z backward) becomes
     ``world_to_camera = inverse(C @ diag(1, -1, -1, 1))``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``transforms.json``.
+    width, height : int, optional
+        Image size in pixels, both or neither.  Without ``w``/``h`` in the file (the NeRF
+        synthetic set: 800 x 800) this is the size; with them, the cameras are rescaled to it
+        (:meth:`Camera.resized`: same aspect ratio, up to rounding).
+    background : array_like, shape [3]
+        Background colour given to every camera.
 
     Raises
     ------
     CameraError
-        Missing file or keys, unknown size, a matrix that is not 4x4 and rigid.
+        Missing file or keys, unknown size, a matrix that is not 4x4 and rigid, a non-pinhole
+        ``camera_model``, a distortion above :data:`MAX_DROPPED_DISTORTION_PX`.
     """
     path = Path(path)
     return _blender_from_json(_read_camera_json(path), path, width=width, height=height, background=background)
@@ -577,40 +867,88 @@ def _blender_number(obj: dict, key: str, where: str, default: Optional[float] = 
     return v
 
 
-def _blender_from_json(obj: Any, path: Path, *, width: Optional[int] = None, height: Optional[int] = None,
-                       background=(0.0, 0.0, 0.0)) -> list[Camera]:
-    if not isinstance(obj, dict) or not isinstance(obj.get("frames"), list):
-        raise CameraError(f"{path}: expected an object with a 'frames' list")
-    where = path.name
-    w, h = obj.get("w", width), obj.get("h", height)
-    if w is None or h is None:
-        raise CameraError(f"{path}: image size unknown (no 'w'/'h' in the file; pass width= and height=)")
-    for key, v in (("w", w), ("h", h)):
-        if _whole_number(v) is None or not 0 < _whole_number(v) <= MAX_IMAGE_SIDE:
-            raise CameraError(f"{where}.{key}: {v!r} must be a positive integer <= {MAX_IMAGE_SIDE} (MAX_IMAGE_SIDE)")
-    w, h = _whole_number(w), _whole_number(h)
-    if "fl_x" in obj:
-        fx = _blender_number(obj, "fl_x", where)
-        fy = _blender_number(obj, "fl_y", where, fx)
-    elif "camera_angle_x" in obj:
+#: Keys of a ``transforms.json`` that describe the camera's lens, at file level or per frame.
+_BLENDER_LENS_KEYS = ("camera_model", "w", "h", "fl_x", "fl_y", "cx", "cy", "camera_angle_x", "camera_angle_y",
+                      "k1", "k2", "k3", "k4", "p1", "p2")
+#: nerfstudio's perspective models: a pinhole, with or without the polynomial distortion.
+_BLENDER_PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")
+
+
+def _blender_lens(src: dict, where: str, path: Path, size: Optional[tuple[int, int]]):
+    """``(Camera kwargs, own_size, distortion coefficients, max_distortion_px kwargs)`` of the lens
+    keys in ``src``; ``own_size`` tells whether the size came from the file."""
+    model = src.get("camera_model")
+    if model is not None and model not in _BLENDER_PINHOLE_MODELS:
+        raise CameraError(f"{where}.camera_model: {model!r} is not a pinhole model (accepted: "
+                          f"{', '.join(_BLENDER_PINHOLE_MODELS)}); undistort the images first, e.g. "
+                          f"COLMAP's 'colmap image_undistorter'")
+    if "w" not in src and "h" not in src:
+        if size is None:
+            raise CameraError(f"{path}: image size unknown (no 'w'/'h' in the file or its frames): give it "
+                              f"with --size WxH on the command line, width= and height= in Python (the "
+                              f"NeRF synthetic images are 800x800)")
+        w, h = size
+        own = False
+    else:
+        for key in ("w", "h"):
+            v = src.get(key)
+            if _whole_number(v) is None or not 0 < _whole_number(v) <= MAX_IMAGE_SIDE:
+                raise CameraError(f"{where}.{key}: {v!r} must be a positive integer <= {MAX_IMAGE_SIDE} "
+                                  f"(MAX_IMAGE_SIDE)")
+        w, h = _whole_number(src["w"]), _whole_number(src["h"])
+        own = True
+    if "fl_x" in src:
+        fx = _blender_number(src, "fl_x", where)
+        fy = _blender_number(src, "fl_y", where, fx)
+    elif "camera_angle_x" in src:
         angles = {}
         for key in ("camera_angle_x", "camera_angle_y"):
-            if key in obj:
-                angles[key] = _blender_number(obj, key, where)
+            if key in src:
+                angles[key] = _blender_number(src, key, where)
                 if not 0 < angles[key] < math.pi:
                     raise CameraError(f"{where}.{key}: {angles[key]!r} must be in (0, pi) radians")
         fx = 0.5 * w / math.tan(0.5 * angles["camera_angle_x"])
         fy = 0.5 * h / math.tan(0.5 * angles["camera_angle_y"]) if "camera_angle_y" in angles else fx
     else:
-        raise CameraError(f"{path}: neither 'fl_x' nor 'camera_angle_x' given")
-    cx = _blender_number(obj, "cx", where, w / 2.0)
-    cy = _blender_number(obj, "cy", where, h / 2.0)
+        raise CameraError(f"{where}: neither 'fl_x' nor 'camera_angle_x' given")
+    cx = _blender_number(src, "cx", where, w / 2.0)
+    cy = _blender_number(src, "cy", where, h / 2.0)
+    coeffs = {k: _blender_number(src, k, where) for k in ("k1", "k2", "k3", "k4", "p1", "p2") if k in src}
+    model_kw = {"radial": [coeffs.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")],
+                "tangential": [coeffs.get("p1", 0.0), coeffs.get("p2", 0.0)]}
+    return dict(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy), own, coeffs, model_kw
+
+
+def _blender_from_json(obj: Any, path: Path, *, width: Optional[int] = None, height: Optional[int] = None,
+                       background=(0.0, 0.0, 0.0)) -> list[Camera]:
+    if not isinstance(obj, dict) or not isinstance(obj.get("frames"), list):
+        raise CameraError(f"{path}: expected an object with a 'frames' list")
+    if not obj["frames"]:
+        raise CameraError(f"{path}: 'frames' is empty")
+    size = _optional_size(width, height)
+    base = {k: obj[k] for k in _BLENDER_LENS_KEYS if k in obj}
     flip = np.diag([1.0, -1.0, -1.0, 1.0])
+    lenses: dict[str, tuple] = {}  # one lens (and one distortion check) per distinct set of overrides
+    found = []
     out = []
     for i, fr in enumerate(obj["frames"]):
         where = f"{path.name}: frames[{i}]"
         if not isinstance(fr, dict) or "transform_matrix" not in fr:
             raise CameraError(f"{where}: missing 'transform_matrix'")
+        over = {k: fr[k] for k in _BLENDER_LENS_KEYS if k in fr}
+        key = json.dumps(over, sort_keys=True)
+        if key not in lenses:
+            lens_where = f"{path}: frames[{i}]" if over else str(path)
+            kw, own, coeffs, model_kw = _blender_lens({**base, **over}, lens_where, path, size)
+            try:
+                probe = Camera(world_to_camera=np.eye(4), **kw)
+            except CameraError as exc:
+                raise CameraError(f"{lens_where}: {exc}") from None
+            small = _check_distortion(probe, coeffs, lens_where, **model_kw)
+            if small:
+                found.append(small)
+            lenses[key] = (kw, own)
+        kw, own = lenses[key]
         try:
             c2w = np.array(fr["transform_matrix"], dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
@@ -624,10 +962,14 @@ def _blender_from_json(obj: Any, path: Path, *, width: Optional[int] = None, hei
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused by Camera, by name
             w2c[:3, 3] = -r.T @ t
         try:
-            out.append(Camera(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy, world_to_camera=w2c,
-                              background=background, name=str(fr.get("file_path", f"{i:05d}"))))
+            cam = Camera(world_to_camera=w2c, background=background, name=str(fr.get("file_path", f"{i:05d}")),
+                         **kw)
+            if own and size is not None:
+                cam = cam.resized(*size)
         except CameraError as exc:
             raise CameraError(f"{where}: {exc}") from None
+        out.append(cam)
+    _warn_distortion(found, str(path))
     return out
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import re
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -329,24 +329,12 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         has an unknown one (unless ``ignore_unknown``), a gap in ``f_rest_*``, a coefficient
         count that is not SH degree 0-3, or a non-finite value.
     """
-    from plyfile import PlyData
-
     path = check_regular_file(path, lambda f, m: SceneError(f, m), max_bytes=MAX_BINARY_BYTES)
-    _check_ply_header(path)
-    try:
-        ply = PlyData.read(str(path))
-    except Exception as exc:  # plyfile raises several types on bad input
-        raise SceneError("file", f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
-    try:
-        vertex = ply["vertex"]
-    except KeyError:
-        raise SceneError("file", f"{path}: no 'vertex' element") from None
-    try:
-        data = vertex.data
-        names = list(data.dtype.names or ())
-        n = len(data)
-    except Exception as exc:
-        raise SceneError("file", f"{path}: corrupt vertex data ({exc})") from None
+    header = _check_ply_header(path)
+    table = _VertexTable.mapped(path, header) if header is not None else None
+    if table is None:
+        table = _VertexTable.parsed(path)
+    names, n = table.names, table.n
     missing = [p for p in _BASE_PROPS if p not in names]
     if missing:
         raise SceneError(missing[0], f"{path}: missing vertex property (found {', '.join(names)})")
@@ -364,30 +352,12 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         raise SceneError(unknown[0], f"{path}: unknown vertex property (pass ignore_unknown=True / "
                                      f"--ignore-unknown-properties to skip it)")
     has_normals = all(p in names for p in _NORMAL_PROPS)
-
-    def col(name: str) -> np.ndarray:
-        a = np.asarray(data[name])
-        if a.dtype.kind not in "fiu":
-            raise SceneError(name, f"{path}: dtype {a.dtype} is not numeric")
-        if a.dtype.kind == "f":
-            bad = ~np.isfinite(a)
-            if bad.any():
-                raise SceneError(name, f"{path}: {a[bad][0]} is not finite", (int(np.argmax(bad)),))
-            big = np.abs(a) > _FLOAT32_MAX
-            if big.any():  # a float64 property: refused before the cast to float32 makes it inf
-                i = int(np.argmax(big))
-                raise SceneError(name, f"{path}: {float(a[i])!r} does not fit in float32 (|value| <= {_FLOAT32_MAX:.4g})",
-                                 (i,))
-        return a
-
-    def stack(props) -> np.ndarray:
-        return np.stack([col(p).astype(np.float32) for p in props], axis=1) if n else \
-            np.zeros((0, len(props)), np.float32)
+    col, stack = table.column, table.block
 
     means = stack(("x", "y", "z"))
-    dc = stack(("f_dc_0", "f_dc_1", "f_dc_2"))
-    rest = stack([f"f_rest_{i}" for i in rest_idx]) if rest_idx else np.zeros((n, 0), np.float32)
-    sh = np.concatenate([dc[:, None, :], rest.reshape(n, 3, k - 1).transpose(0, 2, 1)], axis=1)
+    # One gather in [N, K, 3] order: f_rest_* is channel-major in the file.
+    sh = stack([f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}"
+                for j in range(k) for c in range(3)]).reshape(n, k, 3)
     kwargs = {}
     if "object_id" in names:
         kwargs["object_ids"] = col("object_id")
@@ -427,11 +397,21 @@ def ply_property(field: str, index: tuple[int, ...], coeffs: int) -> tuple[str, 
     return names[index[1] if len(index) > 1 else 0], row
 
 
-def _check_ply_header(path: Path) -> None:
-    """Refuse a header whose element counts the file cannot hold (before plyfile allocates them).
+class _PlyHeader(NamedTuple):
+    """What :func:`_check_ply_header` parsed: ``format``, ``elements`` as ``(name, count,
+    [(property, type or None for a list)])``, and ``body`` (byte offset of the data)."""
+
+    format: str
+    elements: list
+    body: int
+
+
+def _check_ply_header(path: Path) -> Optional[_PlyHeader]:
+    """Refuse a header whose element counts the file cannot hold (before anything allocates them).
 
     Each element takes at least its scalar sizes (binary) or two characters per property (ASCII).
-    Headers that do not parse are left to plyfile, which names the fault.
+    Returns the parsed header, or ``None`` for a header that does not parse: plyfile then names
+    the fault.
     """
     with open(path, "rb") as fh:
         head = fh.read(_MAX_PLY_HEADER)
@@ -439,22 +419,117 @@ def _check_ply_header(path: Path) -> None:
     if end < 0:
         if len(head) == _MAX_PLY_HEADER:
             raise SceneError("file", f"{path}: no 'end_header' in the first {_MAX_PLY_HEADER:,} bytes")
-        return
+        return None
     newline = head.find(b"\n", end)
-    body = path.stat().st_size - (newline + 1 if newline >= 0 else len(head))
-    ascii_ = False
+    start = newline + 1 if newline >= 0 else len(head)
+    body = path.stat().st_size - start
+    fmt = ""
+    parsed = True
     elements: list[list] = []
     for line in head[:end].decode("ascii", "replace").splitlines():
         tok = line.split()
         if len(tok) >= 2 and tok[0] == "format":
-            ascii_ = tok[1] == "ascii"
+            fmt = tok[1]
         elif len(tok) == 3 and tok[0] == "element" and tok[2].isdigit():
-            elements.append([tok[1], int(tok[2]), 0])
+            elements.append([tok[1], int(tok[2]), 0, []])
         elif len(tok) >= 3 and tok[0] == "property" and elements:
-            size = _PLY_SIZES.get(tok[2] if tok[1] == "list" else tok[1], 1)
-            elements[-1][2] += 2 if ascii_ else size
-    for name, count, least in elements:
+            kind = tok[2] if tok[1] == "list" else tok[1]
+            size = _PLY_SIZES.get(kind, 1)
+            parsed &= kind in _PLY_SIZES
+            elements[-1][2] += 2 if fmt == "ascii" else size
+            elements[-1][3].append((tok[-1], None if tok[1] == "list" else tok[1]))
+        elif tok and tok[0] not in ("ply", "comment", "obj_info"):
+            parsed = False
+    for name, count, least, _ in elements:
         if count * max(least, 1) > body:
             raise SceneError("file", f"{path}: header claims {count:,} '{name}' elements, more than the "
                                      f"{body:,} bytes after the header can hold")
         body -= count * max(least, 1)
+    if not parsed:
+        return None
+    return _PlyHeader(fmt, [(e[0], e[1], e[3]) for e in elements], start)
+
+
+_PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+class _VertexTable:
+    """The ``vertex`` element's columns, by property name.
+
+    :meth:`mapped` memory-maps a binary file whose first element is ``vertex`` with scalar
+    properties only (every 3DGS writer's layout): no per-splat Python, and a block of 4-byte
+    properties is gathered in one pass over the rows.  Anything else goes through plyfile
+    (:meth:`parsed`), which also names the faults of malformed files.
+    """
+
+    def __init__(self, names: list, n: int, getter, rows: Optional[np.ndarray] = None,
+                 offsets: Optional[dict] = None):
+        self.names, self.n = names, n
+        self._get, self._rows, self._offsets = getter, rows, offsets
+
+    @classmethod
+    def mapped(cls, path: Path, header: _PlyHeader) -> Optional["_VertexTable"]:
+        if header.format not in ("binary_little_endian", "binary_big_endian") or not header.elements:
+            return None
+        name, n, props = header.elements[0]
+        if name != "vertex" or any(t is None for _, t in props) or len({p for p, _ in props}) != len(props):
+            return None
+        order = "<" if header.format == "binary_little_endian" else ">"
+        dtype = np.dtype([(p, order + _PLY_NUMPY[t]) for p, t in props])
+        if n == 0:
+            data = np.zeros(0, dtype)
+        else:
+            # A plain view of the map: gathers from it are ndarrays, not memmaps.
+            data = np.asarray(np.memmap(path, dtype=dtype, mode="r", offset=header.body, shape=(n,)))
+        rows = offsets = None
+        if dtype.itemsize == 4 * len(props):   # every property 4 bytes: view the rows as words
+            rows = data.view(order + "u4").reshape(n, len(props))
+            offsets = {p: i for i, (p, _) in enumerate(props)}
+        return cls([p for p, _ in props], n, lambda p: data[p], rows, offsets)
+
+    @classmethod
+    def parsed(cls, path: Path) -> "_VertexTable":
+        from plyfile import PlyData
+
+        try:
+            ply = PlyData.read(str(path))
+        except Exception as exc:  # plyfile raises several types on bad input
+            raise SceneError("file", f"{path}: not a readable PLY file ({type(exc).__name__}: {exc})") from None
+        try:
+            vertex = ply["vertex"]
+        except KeyError:
+            raise SceneError("file", f"{path}: no 'vertex' element") from None
+        try:
+            data = vertex.data
+            names = list(data.dtype.names or ())
+            n = len(data)
+        except Exception as exc:
+            raise SceneError("file", f"{path}: corrupt vertex data ({exc})") from None
+        return cls(names, n, lambda p: data[p])
+
+    def column(self, name: str) -> np.ndarray:
+        """One property as an array [N] in its file type; a float that does not fit float32 is refused."""
+        a = np.asarray(self._get(name))
+        if a.dtype.kind not in "fiu":
+            raise SceneError(name, f"dtype {a.dtype} is not numeric")
+        if a.dtype.kind == "f" and a.dtype.itemsize > 4:
+            # Refused before the cast to float32 makes it inf (non-finite values are named by SplatScene).
+            big = np.abs(a) > _FLOAT32_MAX
+            if big.any():
+                i = int(np.argmax(big))
+                raise SceneError(name, f"{float(a[i])!r} does not fit in float32 (|value| <= {_FLOAT32_MAX:.4g})", (i,))
+        return a
+
+    def block(self, names) -> np.ndarray:
+        """Properties ``names`` as one float32 array [N, len(names)]."""
+        names = list(names)
+        if self._rows is not None and all(np.asarray(self._get(p)).dtype.kind == "f" for p in names):
+            words = np.take(self._rows, [self._offsets[p] for p in names], axis=1)   # C order
+            if not words.dtype.isnative:
+                words = words.byteswap().view(words.dtype.newbyteorder("="))
+            return words.view(np.float32)
+        if not self.n:
+            return np.zeros((0, len(names)), np.float32)
+        return np.stack([self.column(p).astype(np.float32) for p in names], axis=1)

@@ -183,7 +183,8 @@ class Simulation:
         from l3gs_opt.scene.camera_paths import intrinsics_from_fov
         from l3gs_opt.traces.poses import PoseTrace, read_pose_log
         from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
-        from l3gs_opt.scene.splats import SplatScene, read_ply
+        from l3gs_opt.scene.scene_files import read_scene
+        from l3gs_opt.scene.splats import SplatScene
         from l3gs_opt.simulator.render import REFERENCE_CACHE, VIEW_CACHE, RenderCache, render_backend
         if not isinstance(config, SimConfig):
             raise SimulationError("config", f"{type(config).__name__} is not a SimConfig")
@@ -213,7 +214,7 @@ class Simulation:
         self._valuations: dict[tuple[str, str], Valuation] = {}
         if isinstance(reference, (str, os.PathLike)):
             self.reference_label = f"teacher:{reference}"
-            reference = read_ply(reference)
+            reference = read_scene(reference)
         elif isinstance(reference, SplatScene):
             self.reference_label = "given"
         elif reference is None:
