@@ -55,3 +55,27 @@ def test_inside_cameras_stay_in_the_box_and_far_background_is_ignored():
 def test_bad_arguments(kw, field):
     with pytest.raises(CameraError, match=rf"^{field}: "):
         sample_cameras(_ball(), **{"count": 4, **kw})
+
+
+def test_orbit_is_a_smooth_ring_at_the_outside_distance():
+    scene = _ball()
+    cams = sample_cameras(scene, 24, mode="orbit", width=32, height=24, distance=2.0, up=(0, 0, 1))
+    centre = np.median(scene.means, axis=0)
+    eyes = np.stack([c.center for c in cams])
+    r = np.linalg.norm(eyes - centre, axis=1)
+    np.testing.assert_allclose(r, r[0], rtol=1e-9)
+    np.testing.assert_allclose(eyes[:, 2] - centre[2], r[0] * np.sin(np.radians(20.0)), rtol=1e-9)
+    steps = np.linalg.norm(np.diff(eyes, axis=0), axis=1)
+    np.testing.assert_allclose(steps, steps[0], rtol=1e-9)   # evenly spaced: a path, not a lattice
+
+
+def test_poses_from_cameras_inverts_each_mapping():
+    from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
+    from l3gs_opt.traces.poses import PoseMapping, poses_from_cameras
+
+    cams = sample_cameras(_ball(), 16, width=32, height=24) + sample_cameras(_ball(), 8, mode="orbit", width=32,
+                                                                               height=24)
+    w2c = np.stack([c.world_to_camera for c in cams])
+    for mapping in (PoseMapping(), Z_UP_MAPPING, PoseMapping(scale=2.5, offset=(1.0, -2.0, 0.5))):
+        trace = poses_from_cameras(w2c, np.arange(len(cams)) / 10.0, mapping)
+        np.testing.assert_allclose(mapping.world_to_camera(trace.position, trace.rotation_deg), w2c, atol=1e-9)

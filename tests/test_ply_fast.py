@@ -124,3 +124,17 @@ def test_truncated_binary_is_refused(tmp_path):
     path.write_bytes(data[:-100])
     with pytest.raises(SceneError, match="file"):
         read_ply(path)
+
+
+@pytest.mark.parametrize("prop", ["obj_id", "instance_id", "segment_id"])
+def test_other_tools_object_ids_are_read(tmp_path, prop):
+    scene = _scene(10, 0, 5, ids=True)
+    rec = _records(scene)
+    rec = rec.astype([(n if n != "object_id" else prop, t) for n, t in rec.dtype.descr])
+    got = read_ply(_write(tmp_path / "ids.ply", rec))
+    np.testing.assert_array_equal(got.object_ids, scene.object_ids)
+    both = np.zeros(10, rec.dtype.descr + [("object_id", "<i4")])
+    for name in rec.dtype.names:
+        both[name] = rec[name]
+    with pytest.raises(SceneError, match=rf"^object_id: .*beside {prop!r}|^{prop}: .*beside 'object_id'"):
+        read_ply(_write(tmp_path / "two.ply", both))

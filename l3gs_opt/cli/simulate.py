@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["register"]
+__all__ = ["register", "load_viewer_path", "PATH_FORMATS"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -35,14 +35,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         cache_dir = Path(args.out) / "reference-cache"
     bundle = read_bundle(args.bundle)
     bandwidth, info = trace_bytes(args.trace, mbps=args.mbps, start=args.start, slots=args.slots,
-                                  slot_s=args.slot_s)
+                                  slot_s=args.slot_s, format=args.trace_format)
+    mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
+    poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=args.path_rate, eye=args.eye)
     reference = args.teacher
     if reference is None:   # the teacher the bundle was built from, when it is still there
         recorded = bundle.manifest.get("build", {}).get("teacher")
         if recorded and Path(recorded).is_file():
             reference = recorded
-    sim = Simulation(bundle, args.path, bandwidth, config=config, reference=reference,
-                     mapping=Z_UP_MAPPING if args.up == "z" else PoseMapping(), info=info,
+    sim = Simulation(bundle, poses, bandwidth, config=config, reference=reference, mapping=mapping, info=info,
                      cache_dir=None if args.no_cache else cache_dir)
     result = sim.run(args.method, solver=args.solver, out_dir=args.out, progress=not args.no_progress,
                      resume=args.resume)
@@ -70,6 +71,31 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+PATH_FORMATS = ("log", "eyenavgs", "cameras")
+
+
+def load_viewer_path(path, fmt: str, *, mapping, rate_hz: float = 30.0, eye: str = "centre"):
+    """The viewer's poses from a headset pose log (``log``), an EyeNavGS CSV (``eyenavgs``) or a
+    camera path of 4x4 world-to-camera matrices at ``rate_hz`` (``cameras``), as a
+    :class:`~l3gs_opt.traces.poses.PoseTrace` whose cameras under ``mapping`` are the file's
+    (``log``: the log as it is, mapped as before)."""
+    import numpy as np
+
+    from l3gs_opt.traces.poses import PoseError, poses_from_cameras, read_camera_path, read_pose_log
+
+    if fmt == "log":
+        return read_pose_log(path)
+    if fmt == "eyenavgs":
+        from l3gs_opt.traces.eyenavgs import read_eyenavgs
+
+        trace = read_eyenavgs(path, eye=eye)
+        return poses_from_cameras(trace.world_to_camera(), trace.timestamps_s - trace.timestamps_s[0], mapping)
+    if not (rate_hz > 0 and np.isfinite(rate_hz)):
+        raise PoseError(f"--path-rate: {rate_hz!r} must be a positive number (camera matrices per second)")
+    mats = read_camera_path(path)
+    return poses_from_cameras(mats, np.arange(len(mats)) / rate_hz, mapping)
+
+
 def _upgrade_utility(text: str):
     """``--sh-upgrade-utility``: a named proxy or a fixed fraction."""
     try:
@@ -87,7 +113,16 @@ def register(subparsers) -> None:
                                                "and score what it shows (SSIM/PSNR per second)")
     p.add_argument("bundle", help="bundle directory (l3gs-opt scene build)")
     p.add_argument("--trace", required=True, help="bundled trace name or a trace file (Mbit/s per second)")
-    p.add_argument("--path", required=True, help="the viewer's headset pose log")
+    p.add_argument("--trace-format", default="auto", choices=["auto", "lumos", "mahimahi", "pensieve"],
+                   help="bandwidth trace format (default: detected from the content)")
+    p.add_argument("--path", required=True, help="the viewer's path: a headset pose log, an EyeNavGS CSV or a "
+                                                 "camera path (--path-format)")
+    p.add_argument("--path-format", default="log", choices=list(PATH_FORMATS),
+                   help="log: headset pose log (default); eyenavgs: an EyeNavGS 6DoF CSV (scene frame); "
+                        "cameras: 4x4 world-to-camera matrices, blank line between, at --path-rate")
+    p.add_argument("--path-rate", type=float, default=30.0, help="--path-format cameras: matrices per second")
+    p.add_argument("--eye", default="centre", choices=["centre", "left", "right"],
+                   help="--path-format eyenavgs: which eye's camera (centre: between the two)")
     p.add_argument("--method", required=True,
                    help=f"{', '.join(SIM_METHODS)}, or a solver method (bb, rolling:bb, rolling-future:bb, mpc:H, "
                         "slope, progressive, static, ...)")

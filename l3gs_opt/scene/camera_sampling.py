@@ -11,6 +11,8 @@ be rendered from gives a target.  A user who has only the trained PLY gets camer
   distances (a captured scene's far shell) do not set the radius.
 - ``"inside"`` (rooms): cameras at points drawn uniformly in the middle half of the box that holds the
   same splats, looking in Fibonacci-lattice directions, so every wall is seen.
+- ``"orbit"`` (a viewer's path, not training views): consecutive cameras on a ring at the ``outside``
+  distance, :data:`ORBIT_ELEVATION_DEG` above the plane normal to ``up``, looking at the centre.
 
 Both are deterministic (the lattice; ``inside`` positions by ``seed``).  The world's up axis is
 unknown for a real scene (COLMAP frames are arbitrary), so the cameras' roll is only fixed to keep
@@ -30,7 +32,9 @@ from l3gs_opt.scene.splats import SplatScene
 
 __all__ = ["CAMERA_MODES", "RADIUS_QUANTILE", "sample_cameras"]
 
-CAMERA_MODES = ("outside", "inside")
+CAMERA_MODES = ("outside", "inside", "orbit")
+#: ``orbit``: the ring's elevation above the plane normal to ``up``, degrees.
+ORBIT_ELEVATION_DEG = 20.0
 #: The scene's radius holds this share of the (foreground) splats.
 RADIUS_QUANTILE = 0.9
 
@@ -53,7 +57,7 @@ def _look(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside", width: int = 256,
                    height: int = 192, fov_x_deg: float = 60.0, distance: float = 1.5, seed: int = 0,
-                   background=(0.0, 0.0, 0.0)) -> list[Camera]:
+                   up=(0.0, 0.0, 1.0), background=(0.0, 0.0, 0.0)) -> list[Camera]:
     """Cameras to render a teacher from (see the module docstring).
 
     Parameters
@@ -61,13 +65,15 @@ def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside",
     scene : SplatScene
     count : int
         Number of cameras, >= 1.
-    mode : {"outside", "inside"}, keyword-only
+    mode : {"outside", "inside", "orbit"}, keyword-only
     width, height : int, keyword-only
         Image size in pixels.
     fov_x_deg : float, keyword-only
         Horizontal field of view, degrees.
     distance : float, keyword-only
-        ``outside``: camera distance from the centre in scene radii (> 0).
+        ``outside``, ``orbit``: camera distance from the centre in scene radii (> 0).
+    up : array_like [3], keyword-only
+        ``orbit``: the ring's axis.
     seed : int, keyword-only
     background : RGB triple, keyword-only
 
@@ -95,8 +101,23 @@ def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside",
     dist = np.linalg.norm(pts - centre, axis=1)
     fg = pts[dist <= BACKGROUND_FACTOR * max(float(np.median(dist)), 1e-12)]
     cams = []
-    if mode == "outside":
-        radius = max(float(np.quantile(np.linalg.norm(fg - centre, axis=1), RADIUS_QUANTILE)), 1e-6)
+    radius = max(float(np.quantile(np.linalg.norm(fg - centre, axis=1), RADIUS_QUANTILE)), 1e-6)
+    if mode == "orbit":
+        axis = np.asarray(up, np.float64)
+        if axis.shape != (3,) or not np.isfinite(axis).all() or np.linalg.norm(axis) == 0:
+            raise CameraError(f"up: {up!r} must be a non-zero 3-vector")
+        axis = axis / np.linalg.norm(axis)
+        e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        el = math.radians(ORBIT_ELEVATION_DEG)
+        for i in range(count):
+            a = 2 * math.pi * i / count
+            d = math.cos(el) * (math.cos(a) * e1 + math.sin(a) * e2) + math.sin(el) * axis
+            eye = centre + distance * radius * d
+            cams.append(Camera(**k, world_to_camera=look_at(eye, centre, axis), background=background,
+                               name=f"sampled_orbit_{i:03d}"))
+    elif mode == "outside":
         for i, d in enumerate(_fibonacci(count)):
             eye = centre + distance * radius * d
             cams.append(Camera(**k, world_to_camera=_look(eye, centre), background=background,

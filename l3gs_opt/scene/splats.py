@@ -49,6 +49,9 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _BASE_PROPS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
                "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
 _NORMAL_PROPS = ("nx", "ny", "nz")
+#: Per-splat object id properties read as ``object_ids`` (ours first; the others are what
+#: segmentation tools write). A file may carry one of them; written back as ``object_id``.
+OBJECT_ID_PROPS = ("object_id", "obj_id", "instance_id", "segment_id")
 _REST_RE = re.compile(r"^f_rest_(\d+)$")
 
 
@@ -346,7 +349,10 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         raise SceneError("f_rest", f"{path}: {len(rest_idx)} properties, must be a multiple of 3")
     k = 1 + len(rest_idx) // 3
     sh_degree_from_coeffs(k)
-    known = set(_BASE_PROPS) | set(_NORMAL_PROPS) | {"object_id", "layer"} | {f"f_rest_{i}" for i in rest_idx}
+    id_props = [p for p in OBJECT_ID_PROPS if p in names]
+    if len(id_props) > 1:
+        raise SceneError(id_props[1], f"{path}: a second object id property beside {id_props[0]!r}: which one is meant?")
+    known = set(_BASE_PROPS) | set(_NORMAL_PROPS) | set(OBJECT_ID_PROPS) | {"layer"} | {f"f_rest_{i}" for i in rest_idx}
     unknown = [p for p in names if p not in known]
     if unknown and not ignore_unknown:
         raise SceneError(unknown[0], f"{path}: unknown vertex property (pass ignore_unknown=True / "
@@ -359,8 +365,8 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
     sh = stack([f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}"
                 for j in range(k) for c in range(3)]).reshape(n, k, 3)
     kwargs = {}
-    if "object_id" in names:
-        kwargs["object_ids"] = col("object_id")
+    if id_props:
+        kwargs["object_ids"] = col(id_props[0])
     if "layer" in names:
         kwargs["layers"] = col("layer")
     if has_normals:

@@ -127,11 +127,12 @@ __all__ = ["SimulationError", "SimConfig", "Catalog", "build_catalog", "SlotView
 
 
 def trace_bytes(trace: str, *, mbps: float | None = None, start: int = 0, slots: int = 60,
-                slot_s: float = 1.0) -> tuple[np.ndarray, dict]:
-    """Bytes per slot of a trace window (scaled to a mean of ``mbps`` Mbit/s first) and what was used."""
+                slot_s: float = 1.0, format: str = "auto") -> tuple[np.ndarray, dict]:
+    """Bytes per slot of a trace window (scaled to a mean of ``mbps`` Mbit/s first) and what was used;
+    ``format`` as :func:`l3gs_opt.traces.bandwidth.read_bandwidth_trace`'s."""
     from l3gs_opt.traces.bandwidth import mbps_to_bytes, read_bandwidth_trace
 
-    raw = read_bandwidth_trace(trace)
+    raw = read_bandwidth_trace(trace, format=format)
     scaled, factor = raw.scaled(mbps) if mbps is not None else (raw, 1.0)
     window = scaled.window(start, slots)
     info = {"trace": raw.name, "trace_mean_mbps_raw": float(raw.mbps.mean()), "scale_factor": factor,

@@ -60,7 +60,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_text
-from l3gs_opt.traces.poses import MAX_POSITION_M, PoseTrace
+from l3gs_opt.traces.poses import MAX_POSITION_M, PoseTrace, matrix_to_euler_zxy
 
 __all__ = ["EyeNavError", "EyeNavTrace", "SceneAlignment", "read_eyenavgs", "read_scene_settings",
            "quaternion_to_matrix", "EYES", "MAX_EYENAV_FILE_BYTES", "QUATERNION_NORM_TOL"]
@@ -295,18 +295,7 @@ class EyeNavTrace:
         """
         R = _MIRROR_Z @ quaternion_to_matrix(self.orientations) @ _MIRROR_Z
         return PoseTrace(time_s=self.timestamps_s - self.timestamps_s[0], position=self.positions @ _MIRROR_Z,
-                         rotation_deg=_matrix_to_unity_euler(R))
-
-
-def _matrix_to_unity_euler(R: np.ndarray) -> np.ndarray:
-    """``[N, 3, 3]`` -> ``[N, 3]`` degrees (about x, y, z) with ``R = Ry @ Rx @ Rz``, the inverse of
-    ``euler_to_matrix(angles, "ZXY")``; at +-90 degrees of pitch (gimbal lock) z is set to 0."""
-    sx = np.clip(-R[:, 1, 2], -1.0, 1.0)
-    x = np.arcsin(sx)
-    lock = np.abs(sx) > 1 - 1e-12
-    y = np.where(lock, np.arctan2(-R[:, 2, 0], R[:, 0, 0]), np.arctan2(R[:, 0, 2], R[:, 2, 2]))
-    z = np.where(lock, 0.0, np.arctan2(R[:, 1, 0], R[:, 1, 1]))
-    return np.degrees(np.stack([x, y, z], axis=1))
+                         rotation_deg=matrix_to_euler_zxy(R))
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import warnings
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -260,6 +260,40 @@ class PoseMapping:
         out[..., :3, 3] = -(R_wc @ centre[..., None])[..., 0]
         out[..., 3, 3] = 1.0
         return out
+
+
+def matrix_to_euler_zxy(R: np.ndarray) -> np.ndarray:
+    """``[N, 3, 3]`` -> ``[N, 3]`` degrees (about x, y, z) with ``R = Ry @ Rx @ Rz``: the inverse of
+    ``euler_to_matrix(angles, "ZXY")``; at +-90 degrees of pitch (gimbal lock) z is set to 0."""
+    sx = np.clip(-R[:, 1, 2], -1.0, 1.0)
+    x = np.arcsin(sx)
+    lock = np.abs(sx) > 1 - 1e-12
+    y = np.where(lock, np.arctan2(-R[:, 2, 0], R[:, 0, 0]), np.arctan2(R[:, 0, 2], R[:, 2, 2]))
+    z = np.where(lock, 0.0, np.arctan2(R[:, 1, 0], R[:, 1, 1]))
+    return np.degrees(np.stack([x, y, z], axis=1))
+
+
+def poses_from_cameras(world_to_camera: np.ndarray, time_s: np.ndarray,
+                       mapping: Optional["PoseMapping"] = None) -> PoseTrace:
+    """The :class:`PoseTrace` whose cameras under ``mapping`` are ``world_to_camera`` ``[N, 4, 4]``
+    (the inverse of :meth:`PoseMapping.world_to_camera`; ``mapping`` default: ``PoseMapping()``),
+    so that camera paths and other viewers' traces drive the simulator unchanged. Only ZXY mappings
+    are inverted (every mapping the toolkit makes)."""
+    mapping = mapping or PoseMapping()
+    if mapping.euler_order.upper() != "ZXY":
+        raise PoseError(f"euler_order {mapping.euler_order!r}: only ZXY mappings can be inverted")
+    w2c = np.asarray(world_to_camera, dtype=np.float64)
+    if w2c.ndim != 3 or w2c.shape[1:] != (4, 4):
+        raise PoseError(f"world_to_camera: shape {w2c.shape} must be [N, 4, 4]")
+    W = np.asarray(mapping.world_from_log, dtype=np.float64)
+    R_wc = w2c[:, :3, :3]
+    R_cw = np.swapaxes(R_wc, -1, -2)
+    centre = -(R_cw @ w2c[:, :3, 3:])[..., 0]
+    flip = np.diag([1.0, -1.0, 1.0])
+    R_log = W.T @ R_cw @ flip
+    position = (centre - np.asarray(mapping.offset)) @ W / mapping.scale
+    return PoseTrace(time_s=np.asarray(time_s, dtype=np.float64), position=position,
+                     rotation_deg=matrix_to_euler_zxy(R_log))
 
 
 def read_camera_path(path: str | os.PathLike[str]) -> np.ndarray:
