@@ -226,3 +226,27 @@ def test_regression_jsonable_negative_infinity_in_details():
     back = _json.loads(text)
     assert back["bound"] is None and back["x"] == [None, None, 2.5] and back["n"] == 3 and back["flag"] is True
     assert back["arr"] == [1.0, None] and back["what"] == "NaN and -Infinity in text" and back["4"] == [1, 2]
+
+
+def declines(instance, *, slot=None, **_):
+    """Refuses every instance, as dp does when its table would be too large."""
+    from l3gs_opt.errors import SolveError
+
+    raise SolveError("dp: the table would need 1e12 cells (more than MAX_DP_CELLS)")
+
+
+def test_a_refusal_is_declined_not_an_error(tmp_path):
+    path = run_bench([BenchTask(SPEC, m) for m in ("ilp/highs", "refuser")], tmp_path / "r.jsonl", jobs=1,
+                     progress=False, custom={"refuser": declines})
+    recs = {r["method"]: r for r in read_records(path)}
+    assert recs["refuser"]["status"] == "declined" and recs["refuser"]["flags"] == []
+    assert "MAX_DP_CELLS" in recs["refuser"]["message"]
+    text = write_report(path, tmp_path / "rep").read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| refuser |"))
+    assert row.split("|")[2:5] == [" 1 ", " 0 ", " 1 "]       # records, proven optimal, declined
+    assert "None: every answer was feasible" in text           # a refusal is not a flagged record
+    from l3gs_opt.bench.report import summarise
+
+    old = dict(recs["refuser"], status="error", flags=["declined"])   # a record from before the status
+    (suite,) = summarise(annotate([old])).values()
+    assert suite["refuser"]["declined"] == 1 and suite["refuser"]["flags"] == []

@@ -72,8 +72,10 @@ def test_resume_skips_finished_stages(setup):
     lines = []
     build_bundle(tmp / "t.ply", cams, SIZES, "layered", out, schedule=TINY, show_progress=False, resume=True,
                  log=lines.append)
+    # the default base layer is the pruned chain's last version (separate's first), then the layers
     assert [s for s in lines if "resumed" in s] == ["prune_30: resumed from checkpoint",
-                                                   "layer_0: resumed from checkpoint",
+                                                   "version_1: resumed from checkpoint",
+                                                   "version_0: resumed from checkpoint",
                                                    "layer_1: resumed from checkpoint"]
     assert any(s.startswith("layer_2: 30 splats") for s in lines)
     again = read_bundle(out).scene(1)

@@ -25,7 +25,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from l3gs_opt.bench.run import AGREE_TOL, BenchError, check_records, read_records, recheck
+from l3gs_opt.bench.run import AGREE_TOL, BenchError, check_records, is_declined, read_records, recheck
 
 __all__ = ["ERROR_FLOOR", "annotate", "write_report", "summarise"]
 
@@ -102,8 +102,9 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, An
             "bound_only": all(r.get("bound_only") for r in rs),
             "median_bound_gap": float(np.median(bound_gaps)) if bound_gaps else None,
             "optimal": sum(r["status"] == "optimal" for r in rs),
+            "declined": sum(is_declined(r) for r in rs),
             "all_feasible": all(r.get("feasible") is not False for r in rs),
-            "flags": sorted({f for r in rs for f in r.get("flags", [])}),
+            "flags": sorted({f for r in rs for f in r.get("flags", []) if f != "declined"}),
         }
     return table
 
@@ -266,12 +267,13 @@ def write_report(records_path: str | os.PathLike[str] | Iterable[dict], out_dir:
                       "known optimum) / best known optimum, over instances with a proven optimum; `lp` rows answer "
                       "with a bound only. Load: median 1-minute load average when the records started "
                       "(2 cores; '-' where records predate it).", "",
-                  "| method | records | proven optimal | median time (s) | median error | max error | "
-                  "median bound gap | time-size slope | load | flags |", "|---|---|---|---|---|---|---|---|---|---|"]
+                  "| method | records | proven optimal | declined | median time (s) | median error | max error | "
+                  "median bound gap | time-size slope | load | flags |", "|---|---|---|---|---|---|---|---|---|---|---|"]
         for m, s in summary[suite].items():
             med = "bound only" if s["bound_only"] else _fmt(s["median_error"], ".2e")
             mx = "bound only" if s["bound_only"] else _fmt(s["max_error"], ".2e")
-            lines.append(f"| {m} | {s['records']} | {s['optimal']} | {_fmt(s['median_time_s'])} | {med} | {mx} | "
+            lines.append(f"| {m} | {s['records']} | {s['optimal']} | {s['declined']} | {_fmt(s['median_time_s'])} | "
+                         f"{med} | {mx} | "
                          f"{_fmt(s['median_bound_gap'], '.2e')} | {_fmt(slopes.get(m), '.2f')} | "
                          f"{_fmt(s['median_load'], '.1f')} | {', '.join(s['flags']) or '-'} |")
         lines += ["", f"![error against run time]({err_png})", "", f"![run time against size]({size_png})", ""]
@@ -283,7 +285,7 @@ def write_report(records_path: str | os.PathLike[str] | Iterable[dict], out_dir:
                 lines.append(f"| {r['instance_id']} | {r['method']} | {r['status']} | {err} "
                              f"| {_fmt(r.get('feasible'))} | {_fmt(r.get('bound_valid'))} |")
             lines.append("")
-    flagged = [r for r in records if r.get("flags") or r.get("bound_valid") is False]
+    flagged = [r for r in records if [f for f in r.get("flags", []) if f != "declined"] or r.get("bound_valid") is False]
     lines += ["## Flagged records", ""]
     if flagged:
         lines += ["| record | status | flags | bound valid | message |", "|---|---|---|---|---|"]

@@ -40,6 +40,15 @@ __all__ = ["RECORD_SCHEMA", "BenchError", "BenchTask", "run_bench", "read_record
            "AGREE_TOL", "CROSS_FLAGS", "check_records"]
 
 RECORD_SCHEMA = "l3gs-opt/bench-record@1"
+#: A record's status when the method refuses the instance before solving (e.g. ``dp``'s table would
+#: be too large): beside the :class:`~l3gs_opt.problem.solution.Status` values, never a failure.
+DECLINED = "declined"
+
+
+def is_declined(record: dict) -> bool:
+    """Whether ``record`` is a refusal (also records written before the status existed: ``error``
+    with a ``declined`` flag)."""
+    return record.get("status") == DECLINED or "declined" in record.get("flags", ())
 #: Relative tolerance for two proven optima to count as equal and for a bound to count as valid:
 #: backends solve to zero gap; their round-off on objectives of 1e5-1e9 stays far below it.
 AGREE_TOL = 1e-7
@@ -106,10 +115,9 @@ def run_task(task: BenchTask, time_limit_s: float | None,
     started = time.perf_counter()
     try:
         sol = _solve_label(instance, task.method, time_limit_s, spec.single_slot, custom)
-    except L3gsError as exc:  # e.g. a DP table too large: the method declines this instance
-        record.update(status="error", objective=None, bound=None, runtime_s=time.perf_counter() - started,
+    except L3gsError as exc:  # e.g. a DP table too large: a refusal, not a failure (its own status, no flag)
+        record.update(status=DECLINED, objective=None, bound=None, runtime_s=time.perf_counter() - started,
                       message=f"{type(exc).__name__}: {exc}", feasible=None, objective_ok=None, model_size=None)
-        record["flags"].append("declined")
         return record
     except Exception as exc:  # a crash is a result too: record it, do not lose the run
         record.update(status="error", objective=None, bound=None, runtime_s=time.perf_counter() - started,

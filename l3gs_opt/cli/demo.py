@@ -50,10 +50,9 @@ def _quick_bench(out_dir: Path) -> None:
             err = "bound only" if s["bound_only"] else (f"{s['median_error']:.1e} / {s['max_error']:.1e}"
                                                         if s["median_error"] is not None else "-")
             t = "-" if s["median_time_s"] is None else f"{s['median_time_s']:.4f}"
-            # "declined" is a method refusing an instance it cannot take (e.g. a DP table too large).
-            bad = [f for f in s["flags"] if f != "declined"]
-            flags = (f"  FLAGS: {', '.join(bad)}" if bad else "") + ("  (declined some)" if "declined" in s["flags"]
-                                                                      else "")
+            # "declined": a method refusing an instance it cannot take (e.g. a DP table too large).
+            flags = (f"  FLAGS: {', '.join(s['flags'])}" if s["flags"] else "") + \
+                (f"  (declined {s['declined']})" if s["declined"] else "")
             print(f"    {m:<20} {s['records']:>3} {s['optimal']:>3}  {t:>9}  {err}{flags}")
     print(f"\n  report with plots: {report}\n")
 
