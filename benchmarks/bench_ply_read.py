@@ -6,7 +6,8 @@ Writes a synthetic scene in the reference 3DGS layout (SH degree 3 and normals: 
 properties, 248 bytes a splat) and reads it back in a fresh process per reader and repeat, so that
 each run's peak resident memory (``ru_maxrss``) is its own. Every reader must end with the same
 in-memory arrays (centres, scales, rotations, opacities, SH [N, 16, 3]): plyfile's lazily mapped
-record is turned into those arrays, gsply's ``GSData`` already holds them. The file is in the page
+record is turned into those arrays, gsply's ``GSData`` already holds them. gsply is not a dependency of
+l3gs-opt (its reader was slower and larger here); install it to compare. The file is in the page
 cache (the first run warms it; the table gives the median of the repeats after it): this measures
 the readers, not the disk. Import time is excluded and reported apart.
 
@@ -16,6 +17,7 @@ Writes ``benchmarks/results/ply_read.json`` and ``ply_read.md``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import statistics
@@ -59,7 +61,8 @@ else:
               np.asarray(v["opacity"], np.float32),
               col([f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}" for j in range(k) for c in range(3)])]
 t_read = time.perf_counter() - t0
-checksum = float(sum(float(np.asarray(a, np.float64).sum()) for a in arrays))
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024   # the reader's high-water mark
+checksum = float(sum(float(np.asarray(a).sum(dtype=np.float64)) for a in arrays))
 t_write = None
 if out != "-":
     t0 = time.perf_counter()
@@ -69,7 +72,7 @@ if out != "-":
         gsply.plywrite(out, d)
     t_write = time.perf_counter() - t0
 print(json.dumps({"import_s": t_import, "read_s": t_read, "write_s": t_write, "checksum": checksum,
-                  "maxrss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
+                  "maxrss_bytes": peak}))
 '''
 
 
@@ -105,6 +108,9 @@ def main(argv=None) -> int:
     load_before = os.getloadavg()
     rows = []
     for which in ("l3gs-opt", "gsply", "plyfile"):
+        if importlib.util.find_spec(which.replace("l3gs-opt", "l3gs_opt")) is None:
+            print(f"{which}: not installed (pip install {which}), skipped", flush=True)
+            continue
         run(which, path, "-")   # warms the page cache and numba's on-disk cache
         runs = [run(which, path, str(work / f"out_{which}.ply") if which != "plyfile" else "-")
                 for _ in range(args.repeats)]
@@ -125,7 +131,7 @@ def main(argv=None) -> int:
              f"{version('gsply')}, plyfile {version('plyfile')}. Load average before "
              f"{[round(x, 2) for x in load_before]}, after {[round(x, 2) for x in result['load_after']]}.",
              f"File: {args.splats:,} splats, SH degree 3 with normals, {size:,} bytes ({size / 2**20:.0f} MiB), in "
-             f"the page cache. Median of {args.repeats} fresh processes after one warm-up; peak = max resident set.",
+             f"the page cache. Median of {args.repeats} fresh processes after one warm-up; peak = the process's maximum resident set right after reading (interpreter and imports included).",
              "", "| reader | read (s) | splats/s | peak memory (MiB) | peak / file size | write (s) | import (s) |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:

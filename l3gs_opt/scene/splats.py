@@ -358,23 +358,22 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         raise SceneError(unknown[0], f"{path}: unknown vertex property (pass ignore_unknown=True / "
                                      f"--ignore-unknown-properties to skip it)")
     has_normals = all(p in names for p in _NORMAL_PROPS)
-    col, stack = table.column, table.block
-
-    means = stack(("x", "y", "z"))
-    # One gather in [N, K, 3] order: f_rest_* is channel-major in the file.
-    sh = stack([f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}"
-                for j in range(k) for c in range(3)]).reshape(n, k, 3)
-    kwargs = {}
-    if id_props:
-        kwargs["object_ids"] = col(id_props[0])
-    if "layer" in names:
-        kwargs["layers"] = col("layer")
+    groups = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
+              "quats": ("rot_0", "rot_1", "rot_2", "rot_3"), "opacity": ("opacity",),
+              # [N, K, 3] order: f_rest_* is channel-major in the file
+              "sh": [f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}" for j in range(k) for c in range(3)]}
     if has_normals:
-        kwargs["normals"] = stack(_NORMAL_PROPS)
+        groups["normals"] = _NORMAL_PROPS
+    if id_props:
+        groups["object_ids"] = (id_props[0],)
+    if "layer" in names:
+        groups["layers"] = ("layer",)
+    got = dict(zip(groups, table.gather(groups.values())))
+    means, sh = got["means"], got["sh"].reshape(n, k, 3)
+    kwargs = {key: got[key] for key in ("normals", "object_ids", "layers") if key in got}
     try:
-        return SplatScene(means=means, log_scales=stack(("scale_0", "scale_1", "scale_2")),
-                          quats=stack(("rot_0", "rot_1", "rot_2", "rot_3")),
-                          opacity_logits=col("opacity").astype(np.float32), sh=sh, **kwargs)
+        return SplatScene(means=means, log_scales=got["log_scales"], quats=got["quats"],
+                          opacity_logits=got["opacity"][:, 0], sh=sh, **kwargs)
     except SceneError as exc:  # name the PLY property, not the internal array
         if exc.field not in _SCENE_FIELDS or not exc.index:
             raise
@@ -456,6 +455,8 @@ def _check_ply_header(path: Path) -> Optional[_PlyHeader]:
     return _PlyHeader(fmt, [(e[0], e[1], e[3]) for e in elements], start)
 
 
+#: Rows :meth:`_VertexTable.gather` reads at a time (16 MiB at the reference layout's 248 bytes).
+_GATHER_ROWS = 1 << 16
 _PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
               "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
               "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
@@ -464,16 +465,17 @@ _PLY_NUMPY = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short":
 class _VertexTable:
     """The ``vertex`` element's columns, by property name.
 
-    :meth:`mapped` memory-maps a binary file whose first element is ``vertex`` with scalar
-    properties only (every 3DGS writer's layout): no per-splat Python, and a block of 4-byte
-    properties is gathered in one pass over the rows.  Anything else goes through plyfile
+    :meth:`mapped` handles a binary file whose first element is ``vertex`` with scalar properties
+    only (every 3DGS writer's layout): no per-splat Python; when every property is 4 bytes (the
+    reference layout, ids included), :meth:`gather` reads the rows once, in blocks of
+    :data:`_GATHER_ROWS`, and copies each requested group of columns out of each block, so memory
+    holds the result plus one block (not the file as well).  Anything else goes through plyfile
     (:meth:`parsed`), which also names the faults of malformed files.
     """
 
-    def __init__(self, names: list, n: int, getter, rows: Optional[np.ndarray] = None,
-                 offsets: Optional[dict] = None):
+    def __init__(self, names: list, n: int, getter, words: Optional[tuple] = None):
         self.names, self.n = names, n
-        self._get, self._rows, self._offsets = getter, rows, offsets
+        self._get, self._words = getter, words
 
     @classmethod
     def mapped(cls, path: Path, header: _PlyHeader) -> Optional["_VertexTable"]:
@@ -489,11 +491,10 @@ class _VertexTable:
         else:
             # A plain view of the map: gathers from it are ndarrays, not memmaps.
             data = np.asarray(np.memmap(path, dtype=dtype, mode="r", offset=header.body, shape=(n,)))
-        rows = offsets = None
-        if dtype.itemsize == 4 * len(props):   # every property 4 bytes: view the rows as words
-            rows = data.view(order + "u4").reshape(n, len(props))
-            offsets = {p: i for i, (p, _) in enumerate(props)}
-        return cls([p for p, _ in props], n, lambda p: data[p], rows, offsets)
+        words = None
+        if dtype.itemsize == 4 * len(props):   # every property 4 bytes: rows are words
+            words = (path, header.body, order, {p: (i, _PLY_NUMPY[t]) for i, (p, t) in enumerate(props)})
+        return cls([p for p, _ in props], n, lambda p: data[p], words)
 
     @classmethod
     def parsed(cls, path: Path) -> "_VertexTable":
@@ -515,6 +516,37 @@ class _VertexTable:
             raise SceneError("file", f"{path}: corrupt vertex data ({exc})") from None
         return cls(names, n, lambda p: data[p])
 
+    def gather(self, groups) -> list:
+        """Each group of property names as one array: float32 ``[N, k]`` for a group of floats,
+        the file's integer type ``[N]`` for a group of one integer property."""
+        groups = [list(g) for g in groups]
+        if self._words is None or not self.n:
+            return [self.block(g) if self._kind(g[0]) == "f" else self.column(g[0]) for g in groups]
+        path, body, order, where = self._words
+        width = len(where)
+        outs = [np.empty((self.n, len(g)), order + "u4") for g in groups]
+        index = [[where[p][0] for p in g] for g in groups]
+        with open(path, "rb") as fh:
+            fh.seek(body)
+            for start in range(0, self.n, _GATHER_ROWS):
+                m = min(_GATHER_ROWS, self.n - start)
+                raw = fh.read(4 * width * m)
+                if len(raw) != 4 * width * m:  # the header check makes this unreachable but for a race
+                    raise SceneError("file", f"{path}: ends inside vertex row {start + len(raw) // (4 * width)}")
+                rows = np.frombuffer(raw, order + "u4").reshape(m, width)
+                for out, ix in zip(outs, index):
+                    out[start:start + m] = rows[:, ix]
+        result = []
+        for g, out in zip(groups, outs):
+            if not out.dtype.isnative:
+                out = out.byteswap().view(out.dtype.newbyteorder("="))
+            kind = where[g[0]][1]
+            result.append(out.view(np.float32) if kind[0] == "f" else out.view(kind)[:, 0])
+        return result
+
+    def _kind(self, name: str) -> str:
+        return np.asarray(self._get(name)[:0]).dtype.kind
+
     def column(self, name: str) -> np.ndarray:
         """One property as an array [N] in its file type; a float that does not fit float32 is refused."""
         a = np.asarray(self._get(name))
@@ -529,13 +561,8 @@ class _VertexTable:
         return a
 
     def block(self, names) -> np.ndarray:
-        """Properties ``names`` as one float32 array [N, len(names)]."""
+        """Properties ``names`` as one float32 array [N, len(names)] (column by column)."""
         names = list(names)
-        if self._rows is not None and all(np.asarray(self._get(p)).dtype.kind == "f" for p in names):
-            words = np.take(self._rows, [self._offsets[p] for p in names], axis=1)   # C order
-            if not words.dtype.isnative:
-                words = words.byteswap().view(words.dtype.newbyteorder("="))
-            return words.view(np.float32)
         if not self.n:
             return np.zeros((0, len(names)), np.float32)
         return np.stack([self.column(p).astype(np.float32) for p in names], axis=1)
