@@ -156,3 +156,20 @@ def test_cli_convert_round_trip(setup, capsys):
     assert _cli("scene", "convert", tmp / "c.compressed.ply", tmp / "back.ply") == 0
     back = read_scene(tmp / "back.ply")
     assert back.num_splats == scene.num_splats and back.object_ids is None
+
+
+def test_resume_of_a_separate_build_ignores_the_base_layer_option(setup):
+    """layered_base shapes only layered and distill stages: a separate build resumes across it."""
+    import dataclasses
+
+    tmp, _, cams = setup
+    out = tmp / "sep-resume"
+    build_bundle(tmp / "t.ply", cams, SIZES, "separate", out, schedule=TINY, show_progress=False)
+    lines = []
+    build_bundle(tmp / "t.ply", cams, SIZES, "separate", out, schedule=dataclasses.replace(TINY, layered_base="top"),
+                 show_progress=False, resume=True, log=lines.append)
+    assert sum("resumed" in s for s in lines) == len(SIZES)
+    with pytest.raises(BuildError, match="different schedule"):
+        build_bundle(tmp / "t.ply", cams, SIZES, "layered", tmp / "lay-base", schedule=TINY, show_progress=False)
+        build_bundle(tmp / "t.ply", cams, SIZES, "layered", tmp / "lay-base",
+                     schedule=dataclasses.replace(TINY, layered_base="top"), show_progress=False, resume=True)

@@ -229,6 +229,15 @@ class _Stages:
         os.replace(tmp, self.state_path)  # atomic: an interrupted write never leaves a broken state
 
 
+def _schedule_key(schedule: BuildSchedule, variant: str) -> dict:
+    """The schedule's fields that shape ``variant``'s stages (what a checkpoint must match):
+    ``layered_base`` only matters to the variants with a base layer."""
+    key = dataclasses.asdict(schedule)
+    if variant not in ("layered", "distill"):
+        key.pop("layered_base")
+    return key
+
+
 def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str, out, *,
                  schedule: BuildSchedule = DEFAULT, resume: bool = False, show_progress: bool = True,
                  log: Optional[Callable[[str], None]] = None) -> BuildResult:
@@ -289,7 +298,7 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
     cam_key = hashlib.sha256(json.dumps([[c.width, c.height, c.fx, c.fy, c.cx, c.cy,
                                           c.world_to_camera.tolist()] for c in cams]).encode()).hexdigest()
     key = {"state_version": _STATE_VERSION, "variant": variant, "sizes": sizes, "cameras": cam_key,
-           "schedule": dataclasses.asdict(schedule), **ident}
+           "schedule": _schedule_key(schedule, variant), **ident}
     stages = _Stages(out, key, resume)
     say = log or (lambda s: None)
     views = None
