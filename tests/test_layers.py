@@ -26,7 +26,7 @@ LAYERS = {
     "l3gs_opt.models": 2, "l3gs_opt.solvers": 2, "l3gs_opt.renderer": 2,
     "l3gs_opt.methods": 3, "l3gs_opt.pipeline": 3,
     "l3gs_opt.simulator": 4,
-    "l3gs_opt.bench": 5, "l3gs_opt.experiments": 5,
+    "l3gs_opt.bench": 5, "l3gs_opt.experiments": 5, "l3gs_opt.delivery": 5,
     "l3gs_opt.cli": 6,
     "l3gs_opt": 7,
 }

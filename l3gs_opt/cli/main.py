@@ -356,6 +356,9 @@ def build_parser() -> argparse.ArgumentParser:
     from l3gs_opt.cli.bundle import register as register_bundle
 
     register_bundle(sub)   # bundle export|info: the streamable chunk index
+    from l3gs_opt.cli.replay import register as register_replay
+
+    register_replay(sub)   # replay RUN --out PAGE: an HTML page of a simulated run
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")

@@ -27,6 +27,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                        sh_upgrade_utility=args.sh_upgrade_utility)
     if args.resume and not args.out:
         raise SimulationError("resume", "needs --out (the folder of the interrupted run)")
+    if args.save_views and not args.out:
+        raise SimulationError("save-views", "needs --out (the pictures go to OUT/views)")
     for option, folder in (("--out", args.out), ("--cache-dir", args.cache_dir)):
         if folder and Path(folder).exists() and not Path(folder).is_dir():
             raise SimulationError(option, f"{folder} is a file: expected a folder")
@@ -46,7 +48,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     sim = Simulation(bundle, poses, bandwidth, config=config, reference=reference, mapping=mapping, info=info,
                      cache_dir=None if args.no_cache else cache_dir)
     result = sim.run(args.method, solver=args.solver, out_dir=args.out, progress=not args.no_progress,
-                     resume=args.resume)
+                     resume=args.resume, views_dir=Path(args.out) / "views" if args.save_views else None)
     s = result.summary
     if args.json:
         from l3gs_opt.jsonout import dumps
@@ -167,6 +169,9 @@ def register(subparsers) -> None:
     p.add_argument("--out", default=None, help="folder: slots.jsonl (one line per slot, as it goes), summary.jsonl")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run from the slots of this method recorded in --out")
+    p.add_argument("--save-views", action="store_true",
+                   help="keep what the viewer saw: each slot's picture and the reference as PNG files in OUT/views "
+                        "(l3gs-opt replay OUT shows them)")
     p.add_argument("--cache-dir", default=None,
                    help="keep the reference (teacher) renders there, one file per camera, for later runs "
                         "(default: OUT/reference-cache with --out)")

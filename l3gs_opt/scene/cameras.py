@@ -1,7 +1,8 @@
 """Pinhole cameras (OpenCV convention) and their file formats.
 
 Length (~1000 lines): the camera type, the four file formats it is read from and written to
-(camera JSON, NeRF ``transforms.json``, COLMAP text and binary), each validated field by field.
+(camera JSON, NeRF ``transforms.json``, COLMAP text and binary), each validated field by field, and
+the one lens-distortion rule both real formats share (so it lives beside them).
 
 Convention (the standard 3DGS one): camera axes x right, y down, z forward; a world point
 ``p`` maps to camera coordinates ``R p + t`` with ``world_to_camera = [[R, t], [0, 0, 0, 1]]``

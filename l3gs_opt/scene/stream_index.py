@@ -14,6 +14,10 @@ headerless array of little-endian records, as in the bundle; see :mod:`l3gs_opt.
 The chunk bytes are copied from the bundle unchanged: a stream holds the bundle's records bit for
 bit, and :func:`stream_bundle` reads a stream export back as a :class:`~l3gs_opt.scene.bundle.Bundle`.
 
+Length (~900 lines): most of it is the reader's validation, which checks every field and every
+cross-reference of an index a server or another tool may have written (ranges, alignment, files
+inside the folder, hashes, boxes, totals), each error naming the field and index.
+
 Vocabulary follows PlayCanvas's streamed-SOG ``lod-meta.json`` (splat-transform) where it fits:
 ``filenames`` (data files, paths relative to the index, referred to by integer ``file``),
 ``count`` (splats in all levels), ``bound`` ``{min, max}`` per node, and ``offset``/``count`` per

@@ -6,14 +6,24 @@ each part of a slot (``SimConfig.substeps``), lets every client plan, splits the
 max-min fairly among their demands (:func:`l3gs_opt.simulator.link.max_min_shares`; a single client gets
 all of them) and delivers. :meth:`Simulation.run` drives one client, :func:`l3gs_opt.simulator.shared.run_shared`
 several.
+
+With ``views_dir`` a client also keeps what its viewer saw: each slot's image as
+``VIEWS/<views_folder(...)>/SSS.png`` and the reference as ``VIEWS/reference/SSS.png`` (``SSS``: the
+slot, three digits or more), written atomically before the slot's record, so a record implies its
+pictures and an interrupted run keeps every finished slot's; ``VIEWS/<folder>/views.json`` names the
+run (``run_id``) the pictures belong to. The runs written to one folder share the reference
+pictures (the latest run's): they are meant to share the viewer and the reference scene.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
+import re
 import time
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -23,11 +33,39 @@ from l3gs_opt.simulator.config import TIMING_KEYS, SimulationError, SlotInputs
 from l3gs_opt.simulator.records import RecordWriter, RunSummary, SimulationResult
 from l3gs_opt.simulator.schedulers import ItemSlotView, SlotView
 
-__all__ = ["Client", "drive"]
+__all__ = ["Client", "drive", "views_folder", "REFERENCE_VIEWS", "VIEWS_FILE"]
+
+#: Folder of the reference pictures under a views folder; ``views_folder`` never returns it.
+REFERENCE_VIEWS = "reference"
+#: The file beside a method's pictures that names the run they belong to.
+VIEWS_FILE = "views.json"
+_PICTURE = re.compile(r"[0-9]{3,}\.png")
 
 
 def _finite_or_none(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
+
+
+def views_folder(method: str, solver: str | None = None, utility: str | None = "eq1",
+                 client: int | None = None) -> str:
+    """The folder name of a run's pictures under a views folder: the method, then the solver,
+    the utility (when not ``eq1``) and the client (when shared), joined by ``__``; characters
+    other than letters, digits, ``.``, ``-`` and ``_`` become ``-`` (``rolling:bb`` -> ``rolling-bb``)."""
+    parts = [method] + ([solver] if solver else []) + ([utility] if utility not in (None, "eq1") else []) \
+        + ([f"c{client}"] if client is not None else [])
+    name = "__".join(re.sub(r"[^A-Za-z0-9._-]+", "-", str(p)) for p in parts)
+    return name if name != REFERENCE_VIEWS else name + "__"
+
+
+def _save_png(path: Path, image: np.ndarray) -> None:
+    """``image`` (float ``[H, W, 3]`` in [0, 1]) as an 8-bit PNG, replaced atomically (a reader or an
+    interruption never sees half a file)."""
+    from PIL import Image   # matplotlib's own PNG writer; a dependency through it
+
+    pixels = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    Image.fromarray(pixels, "RGB").save(tmp, format="PNG")
+    os.replace(tmp, path)
 
 
 class Client:
@@ -38,7 +76,8 @@ class Client:
     goes on).
     """
 
-    def __init__(self, sim, spec, *, index: int | None = None, clients: int = 1, out_dir=None, resume: bool = False):
+    def __init__(self, sim, spec, *, index: int | None = None, clients: int = 1, out_dir=None, resume: bool = False,
+                 views_dir=None):
         self.sim, self.spec = sim, spec
         self.cfg = cfg = sim.config
         self.cat = cat = sim.catalog(spec.view)
@@ -68,6 +107,29 @@ class Client:
         for record in self.writer.resumed:
             self._replay(record)
         self.first_slot = len(self.records)
+        try:
+            self.views = None if views_dir is None else self._start_views(Path(views_dir), resume)
+        except BaseException:
+            self.writer.close()
+            raise
+
+    def _start_views(self, views: Path, resume: bool) -> tuple[Path, Path]:
+        """This run's picture folder and the reference folder, created; a fresh run first drops
+        the pictures an earlier run of the same key left (they would pass for this run's)."""
+        spec = self.spec
+        mine = views / views_folder(spec.name, spec.solver, spec.utility, self.index)
+        reference = views / REFERENCE_VIEWS
+        for folder in (views, mine, reference):
+            if folder.exists() and not folder.is_dir():
+                raise SimulationError("views", f"{folder} is a file: expected a folder")
+            folder.mkdir(parents=True, exist_ok=True)
+        if not resume:
+            for old in mine.iterdir():
+                if _PICTURE.fullmatch(old.name):
+                    old.unlink()
+        (mine / VIEWS_FILE).write_text(json.dumps({"run_id": self.run, "method": spec.name, "solver": spec.solver,
+                                                   "utility": spec.utility, "client": self.index}) + "\n")
+        return mine, reference
 
     # -- one slot -----------------------------------------------------------------------------------
     def slot_inputs(self, t: int) -> SlotInputs:
@@ -192,6 +254,9 @@ class Client:
                                  "metrics": metrics_s})
         if full is not None:
             record["splats_full_sh"] = int(full.sum())
+        if self.views is not None:
+            _save_png(self.views[0] / f"{t:03d}.png", image)
+            _save_png(self.views[1] / f"{t:03d}.png", ref)
         self.records.append(record)
         self.writer.slot(record)
         return record

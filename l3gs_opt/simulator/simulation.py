@@ -445,7 +445,8 @@ class Simulation:
 
     def run(self, method: "str | MethodSpec", *, solver: str | None = None, utility: str | None = None,
             order_utility: str | None = None, out_dir: str | os.PathLike | None = None,
-            progress: bool = False, resume: bool = False) -> SimulationResult:
+            progress: bool = False, resume: bool = False,
+            views_dir: str | os.PathLike | None = None) -> SimulationResult:
         """Simulate ``method`` over every slot (see the module docstring).
 
         Parameters
@@ -468,6 +469,10 @@ class Simulation:
         resume : bool
             Continue from the slots of this method already in ``OUT/slots.jsonl`` (needs
             ``out_dir``); nothing recorded: a fresh run.
+        views_dir : path, optional
+            Keep what the viewer saw: each slot's client image and reference image as PNG files
+            in this folder (:class:`l3gs_opt.simulator.client.Client`; ``l3gs-opt replay`` shows
+            them), written as the slots finish.
 
         Returns
         -------
@@ -484,7 +489,7 @@ class Simulation:
         if resume and out_dir is None:
             raise SimulationError("resume", "needs out_dir (the folder with slots.jsonl)")
         client = Client(self, self.spec(method, solver, utility=utility, order_utility=order_utility),
-                        out_dir=out_dir, resume=resume)
+                        out_dir=out_dir, resume=resume, views_dir=views_dir)
         drive([client], self.link_bytes, start=client.first_slot, progress=progress)
         return client.finish()
 
