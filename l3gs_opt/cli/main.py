@@ -359,6 +359,9 @@ def build_parser() -> argparse.ArgumentParser:
     from l3gs_opt.cli.replay import register as register_replay
 
     register_replay(sub)   # replay RUN --out PAGE: an HTML page of a simulated run
+    from l3gs_opt.cli.fetch import register as register_fetch
+
+    register_fetch(sub)   # fetch, serve: real delivery over HTTP
 
     d = sub.add_parser("demo", help="the README's demo: solve, compare and report on a real trace")
     d.add_argument("--out", default="demo-out", help="folder for the demo's files")
