@@ -38,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
-from l3gs_opt.pipeline.build import QUICK, build_bundle  # noqa: E402
+from l3gs_opt.pipeline.build import DEFAULT, QUICK, build_bundle  # noqa: E402
 from l3gs_opt.renderer.metrics import psnr, ssim  # noqa: E402
 from l3gs_opt.renderer.render import render_scene  # noqa: E402
 from l3gs_opt.renderer.train import TRAIN_THREADS, threads  # noqa: E402
@@ -62,7 +62,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default=str(SHARED / "gshairlod_donut_fused.ply"))
     ap.add_argument("--sizes", default="5000,10000,15000,20000")
-    ap.add_argument("--objects", type=int, default=8)
+    ap.add_argument("--objects", default="8", help="object count for the bundles, or 'auto'")
+    ap.add_argument("--planes", type=int, default=0, help="dominant planes split off first (segmentation)")
+    ap.add_argument("--camera-mode", default="outside", choices=["outside", "inside"])
+    ap.add_argument("--variants", default="layered,separate,sort")
+    ap.add_argument("--no-simulate", action="store_true")
+    ap.add_argument("--full", action="store_true", help="the DEFAULT schedule instead of QUICK")
     ap.add_argument("--views", type=int, default=32, help="training cameras sampled around the scene")
     ap.add_argument("--test", type=int, default=6, help="held-out cameras")
     ap.add_argument("--trace", default="lumos-throughput-mid-11")
@@ -81,7 +86,12 @@ def main(argv=None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     sizes = [int(s) for s in args.sizes.split(",")]
-    result = {"machine": machine_info(), "scene": args.scene, "sizes": sizes, "schedule": "quick", "stages": {}}
+    schedule = DEFAULT if args.full else QUICK
+    objects = args.objects if args.objects == "auto" else int(args.objects)
+    variants = args.variants.split(",")
+    result = {"machine": machine_info(), "scene": args.scene, "sizes": sizes, "stages": {},
+              "schedule": "default" if args.full else "quick", "variants": variants, "planes": args.planes,
+              "camera_mode": args.camera_mode}
     st = result["stages"]
 
     t0 = time.perf_counter()
@@ -92,27 +102,28 @@ def main(argv=None) -> int:
     print(f"read {scene!r} in {st['read_s']:.2f} s", flush=True)
 
     t0 = time.perf_counter()
-    auto = segment_scene(scene, "auto")
+    auto = segment_scene(scene, "auto", planes=args.planes)
     st["segment_auto_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    teacher = segment_scene(scene, args.objects)
+    teacher = segment_scene(scene, objects, planes=args.planes)
     st["segment_s"] = time.perf_counter() - t0
     result["segment_auto_objects"] = object_counts(auto)
     result["objects"] = object_counts(teacher)
     print(f"segment: auto {len(object_counts(auto))} objects ({st['segment_auto_s']:.2f} s); "
           f"{args.objects} objects {object_counts(teacher)} ({st['segment_s']:.2f} s)", flush=True)
 
-    w = QUICK.max_width
+    w = schedule.max_width
     h = round(w * 3 / 4)
-    train = sample_cameras(teacher, args.views, width=w, height=h)
-    test = [c for c in sample_cameras(teacher, args.views + args.test + 1, width=w, height=h)][::(args.views // args.test)]
+    train = sample_cameras(teacher, args.views, mode=args.camera_mode, width=w, height=h)
+    test = sample_cameras(teacher, args.views + args.test + 1, mode=args.camera_mode, width=w, height=h,
+                          seed=1)[::(args.views // args.test)]
     test = test[:args.test]
     with threads(TRAIN_THREADS):
         targets = [_render(teacher, c) for c in test]
     result["quality"] = {}
-    for variant in ("layered", "separate", "sort"):
+    for variant in variants:
         t0 = time.perf_counter()
-        res = build_bundle(teacher, train, sizes, variant, work / variant, schedule=QUICK, show_progress=False,
+        res = build_bundle(teacher, train, sizes, variant, work / variant, schedule=schedule, show_progress=False,
                            resume=True, log=lambda s: print(f"[{variant}] {s}", flush=True))
         st[f"build_{variant}_s"] = time.perf_counter() - t0
         st[f"build_{variant}_stages_s"] = res.stage_seconds
@@ -128,6 +139,8 @@ def main(argv=None) -> int:
         result["quality"][variant] = rows
         print(variant, [(r["splats"], round(r["psnr"], 2), round(r["ssim"], 4)) for r in rows], flush=True)
 
+    if args.no_simulate:
+        return _write(result, args)
     top_bytes = sum(c["bytes"] for c in read_bundle(work / "layered").manifest["chunks"])
     mbps = args.mbps or top_bytes * 8 / 1e6 / 20.0
     bandwidth, info = trace_bytes(args.trace, mbps=mbps, start=0, slots=60)
@@ -145,6 +158,10 @@ def main(argv=None) -> int:
                                               "ssim_per_s": s["ssim_per_s"], "seconds": dt})
         print(f"simulate {method}[{utility}] on {variant}: SSIM {s['ssim_mean']:.4f} ({dt:.1f} s)", flush=True)
     st["simulate_s"] = sum(m["seconds"] for m in result["simulate"]["methods"])
+    return _write(result, args)
+
+
+def _write(result: dict, args) -> int:
     result["loadavg_at_end"] = list(os.getloadavg())
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -161,22 +178,27 @@ def _markdown(r: dict) -> str:
              f"load at start {[round(x, 2) for x in m['loadavg_at_start']]}, at end "
              f"{[round(x, 2) for x in r['loadavg_at_end']]}.",
              f"Scene: {r['splats']:,} splats, SH degree {r['sh_degree']}, {r['file_bytes']:,} bytes; ids dropped, "
-             f"no cameras given. Versions {r['sizes']} (QUICK schedule).", "",
+             f"no cameras given (sampled {r.get('camera_mode', 'outside')} the scene). Versions {r['sizes']} "
+             f"({r['schedule'].upper()} schedule).", "",
              "| stage | seconds |", "|---|---|",
              f"| read | {st['read_s']:.2f} |",
              f"| segment, auto ({len(r['segment_auto_objects'])} objects) | {st['segment_auto_s']:.2f} |",
              f"| segment, {len(r['objects'])} objects {r['objects']} | {st['segment_s']:.2f} |"]
-    for v in ("layered", "separate", "sort"):   # the stages' own times: a resumed stage keeps its time
+    variants = r.get("variants", ["layered", "separate", "sort"])
+    for v in variants:   # the stages' own times: a resumed stage keeps its time
         stages = st[f"build_{v}_stages_s"]
         lines.append(f"| build {v} ({', '.join(f'{k} {x:.0f}' for k, x in stages.items())}) | "
                      f"{sum(stages.values()):.1f} |")
-    lines.append(f"| simulate ({len(r['simulate']['methods'])} runs of 60 slots) | {st['simulate_s']:.1f} |")
+    if "simulate" in r:
+        lines.append(f"| simulate ({len(r['simulate']['methods'])} runs of 60 slots) | {st['simulate_s']:.1f} |")
     lines += ["", "Quality against the teacher (held-out sampled cameras): PSNR dB / SSIM", "",
-              "| version | splats | layered | separate | sort |", "|---|---|---|---|---|"]
+              "| version | splats | " + " | ".join(variants) + " |", "|---|---|" + "---|" * len(variants)]
     q = r["quality"]
-    for i, row in enumerate(q["layered"]):
-        cells = [f"{q[v][i]['psnr']:.2f} / {q[v][i]['ssim']:.4f}" for v in ("layered", "separate", "sort")]
+    for i, row in enumerate(q[variants[0]]):
+        cells = [f"{q[v][i]['psnr']:.2f} / {q[v][i]['ssim']:.4f}" for v in variants]
         lines.append(f"| {i + 1} | {row['splats']:,} | " + " | ".join(cells) + " |")
+    if "simulate" not in r:
+        return "\n".join(lines) + "\n"
     s = r["simulate"]
     lines += ["", f"Delivery: trace {s['trace']['trace']} scaled to {s['mbps']:.2f} Mbit/s (top version "
                   f"{s['top_bytes']:,} bytes over 20 s), 60 slots, orbiting viewer:", "",
