@@ -67,6 +67,8 @@ def main(argv=None) -> int:
     ap.add_argument("--camera-mode", default="outside", choices=["outside", "inside"])
     ap.add_argument("--variants", default="layered,separate,sort")
     ap.add_argument("--no-simulate", action="store_true")
+    ap.add_argument("--orbit-distance", type=float, default=1.5,
+                    help="the viewer's orbit radius in scene radii (below 1: inside the scene, for rooms)")
     ap.add_argument("--full", action="store_true", help="the DEFAULT schedule instead of QUICK")
     ap.add_argument("--views", type=int, default=32, help="training cameras sampled around the scene")
     ap.add_argument("--test", type=int, default=6, help="held-out cameras")
@@ -144,10 +146,12 @@ def main(argv=None) -> int:
     top_bytes = sum(c["bytes"] for c in read_bundle(work / "layered").manifest["chunks"])
     mbps = args.mbps or top_bytes * 8 / 1e6 / 20.0
     bandwidth, info = trace_bytes(args.trace, mbps=mbps, start=0, slots=60)
-    path = sample_cameras(teacher, 1800, mode="orbit", width=args.width, height=args.height, distance=1.5)
+    path = sample_cameras(teacher, 1800, mode="orbit", width=args.width, height=args.height,
+                          distance=args.orbit_distance)
     poses = poses_from_cameras(np.stack([c.world_to_camera for c in path]), np.arange(1800) / 30.0)
-    result["simulate"] = {"trace": info, "mbps": mbps, "top_bytes": top_bytes, "methods": []}
-    for method, variant, utility in METHODS:
+    result["simulate"] = {"trace": info, "mbps": mbps, "top_bytes": top_bytes, "methods": [],
+                          "orbit_distance": args.orbit_distance}
+    for method, variant, utility in (m for m in METHODS if m[1] in variants):
         cfg = SimConfig(width=args.width, height=args.height, fov_deg=60.0, utility=utility)
         t0 = time.perf_counter()
         sim = Simulation(work / variant, poses, bandwidth, config=cfg, reference=teacher, mapping=PoseMapping())

@@ -124,3 +124,40 @@ def test_adjusted_rand_index_against_pair_counting(pairs):
     want = 1.0 if top == 0 else (both - expected) / top
     assert adjusted_rand_index(a, b) == pytest.approx(want, abs=1e-12)
     assert adjusted_rand_index(a, a) == pytest.approx(1.0)
+
+
+def test_gaussian_grouping_identity_encodings_segment_the_scene(tmp_path, capsys):
+    """A PLY with obj_dc_* encodings (Gaussian Grouping): read_ply skips them, segmentation clusters
+    them, so two objects that touch in space are told apart by their encodings."""
+    from plyfile import PlyData, PlyElement
+
+    from l3gs_opt.scene import splats
+    from l3gs_opt.scene.splats import read_identity_features
+
+    rng = np.random.default_rng(7)
+    pts = np.concatenate([_box(300, (0, 0, 0), 1, rng), _box(300, (0.9, 0, 0), 1, rng)])   # overlapping boxes
+    scene = _scene_of(pts)
+    codes = np.zeros((600, 16), np.float32)
+    codes[:300, 3], codes[300:, 11] = 1.0, 1.0
+    codes += rng.normal(0, 0.05, codes.shape).astype(np.float32)
+    base = np.empty(600, splats._ply_dtype(scene))
+    write_ply(scene, tmp_path / "plain.ply")
+    plain = PlyData.read(str(tmp_path / "plain.ply"))["vertex"].data
+    rec = np.zeros(600, base.dtype.descr + [(f"obj_dc_{i}", "<f4") for i in range(16)])
+    for name in plain.dtype.names:
+        rec[name] = plain[name]
+    for i in range(16):
+        rec[f"obj_dc_{i}"] = codes[:, i]
+    PlyData([PlyElement.describe(rec, "vertex")]).write(str(tmp_path / "gg.ply"))
+    assert read_ply(tmp_path / "gg.ply").num_splats == 600          # encodings are not unknown properties
+    np.testing.assert_array_equal(read_identity_features(tmp_path / "gg.ply"), codes)
+    assert read_identity_features(tmp_path / "plain.ply") is None
+    assert segment_scene(scene, 2).num_objects == 2
+    got = segment_scene(scene, 2, features=read_identity_features(tmp_path / "gg.ply"))
+    assert adjusted_rand_index(np.repeat([0, 1], 300), got.object_ids) == 1.0
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["scene", "segment", str(tmp_path / "gg.ply"), "--objects", "2",
+                              "--out", str(tmp_path / "out.ply")])
+    assert args.func(args) == 0 and "identity encodings" in capsys.readouterr().out
+    np.testing.assert_array_equal(read_ply(tmp_path / "out.ply").object_ids, got.object_ids)

@@ -166,17 +166,28 @@ def _parse_objects(text: str):
         return text
 
 
+def _identity_features(path):
+    """Gaussian Grouping's identity encodings when a PLY carries them, else None."""
+    if not str(path).lower().endswith(".ply"):
+        return None
+    from l3gs_opt.scene.splats import read_identity_features
+
+    return read_identity_features(path)
+
+
 def _cmd_scene_segment(args: argparse.Namespace) -> int:
     from l3gs_opt.scene.scene_files import read_scene, write_scene
     from l3gs_opt.scene.segment import object_counts, segment_scene
 
     scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
+    features = _identity_features(args.scene)
     t0 = time.perf_counter()
     out = segment_scene(scene, _parse_objects(args.objects), method=args.method, planes=args.planes,
-                        background=args.background, seed=args.seed)
+                        background=args.background, seed=args.seed, features=features)
     dt = time.perf_counter() - t0
     path = write_scene(out, args.out)
-    print(f"wrote {path}: {out.num_splats} splats in {out.num_objects} objects ({args.method}, "
+    how = "k-means on the file's identity encodings" if features is not None else args.method
+    print(f"wrote {path}: {out.num_splats} splats in {out.num_objects} objects ({how}, "
           f"{args.planes} planes{', background' if args.background else ''}; {dt:.1f} s), "
           f"splats per object {object_counts(out)}")
     return 0
@@ -202,7 +213,8 @@ def _cmd_scene_build(args: argparse.Namespace) -> int:
 
         t0 = time.perf_counter()
         teacher = segment_scene(teacher, _parse_objects(args.objects), planes=args.planes,
-                                background=args.background, seed=args.seed)
+                                background=args.background, seed=args.seed,
+                                features=_identity_features(args.teacher))
         print(f"segmented the teacher into {teacher.num_objects} objects in {time.perf_counter() - t0:.1f} s: "
               f"splats per object {object_counts(teacher)}")
     if args.cameras is not None:

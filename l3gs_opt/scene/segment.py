@@ -231,7 +231,8 @@ def _to_count(points: np.ndarray, labels: np.ndarray, k: int, rng: np.random.Gen
 
 
 def segment_labels(scene: SplatScene, objects: Union[int, str] = "auto", *, method: str = "components",
-                   planes: int = 0, background: bool = False, seed: int = 0, iterations: int = 30) -> np.ndarray:
+                   planes: int = 0, background: bool = False, seed: int = 0, iterations: int = 30,
+                   features: np.ndarray | None = None) -> np.ndarray:
     """Object id of every splat, ``0..k-1`` by decreasing size (see the module docstring).
 
     Parameters
@@ -247,6 +248,11 @@ def segment_labels(scene: SplatScene, objects: Union[int, str] = "auto", *, meth
     seed : int, keyword-only
     iterations : int, keyword-only
         Lloyd iterations of each k-means.
+    features : ndarray [N, K], optional, keyword-only
+        Per-splat identity encodings (Gaussian Grouping's ``obj_dc_*``,
+        :func:`l3gs_opt.scene.splats.read_identity_features`): the splats left after planes and
+        background are grouped by k-means on the unit-normalised encodings (``method`` is then
+        ignored; ``"auto"`` takes the components' count, as ``kmeans`` does).
 
     Returns
     -------
@@ -260,6 +266,11 @@ def segment_labels(scene: SplatScene, objects: Union[int, str] = "auto", *, meth
     _check(scene, objects, method, planes)
     pts = scene.means.astype(np.float64)
     n = len(pts)
+    if features is not None:
+        features = np.asarray(features, np.float64)
+        if features.ndim != 2 or features.shape[0] != n or not np.isfinite(features).all():
+            raise SceneError("features", f"shape {features.shape}: must be finite [N, K] (N = {n})")
+        features = features / np.maximum(np.linalg.norm(features, axis=1, keepdims=True), 1e-12)
     rng = np.random.default_rng(seed)
     labels = np.full(n, -1, np.int64)
     nxt = 0
@@ -285,7 +296,9 @@ def segment_labels(scene: SplatScene, objects: Union[int, str] = "auto", *, meth
     rest = np.nonzero(labels < 0)[0]
     if len(rest):
         wanted = None if objects == "auto" else max(1, int(objects) - nxt)
-        if method == "kmeans":
+        if features is not None:
+            sub = _kmeans(features[rest], wanted or _auto_count(pts[rest], voxel, n), rng, iterations)
+        elif method == "kmeans":
             sub = _kmeans(pts[rest], wanted or _auto_count(pts[rest], voxel, n), rng, iterations)
         else:
             sub = _components(pts[rest], voxel)
@@ -312,12 +325,13 @@ def _by_size(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 
 def segment_scene(scene: SplatScene, objects: Union[int, str] = "auto", *, method: str = "components",
-                  planes: int = 0, background: bool = False, seed: int = 0, iterations: int = 30) -> SplatScene:
+                  planes: int = 0, background: bool = False, seed: int = 0, iterations: int = 30,
+                  features: np.ndarray | None = None) -> SplatScene:
     """Return ``scene`` with ``object_ids`` from :func:`segment_labels` (existing ids are replaced;
     the splats are untouched)."""
     return dataclasses.replace(scene, object_ids=segment_labels(scene, objects, method=method, planes=planes,
                                                                 background=background, seed=seed,
-                                                                iterations=iterations))
+                                                                iterations=iterations, features=features))
 
 
 def object_counts(scene: SplatScene) -> list[int]:

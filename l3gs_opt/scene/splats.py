@@ -34,7 +34,7 @@ import numpy as np
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import MAX_BINARY_BYTES, check_regular_file
 
-__all__ = ["SceneError", "SplatScene", "read_ply", "write_ply", "sh_degree_from_coeffs",
+__all__ = ["SceneError", "SplatScene", "read_ply", "write_ply", "read_identity_features", "sh_degree_from_coeffs",
            "bytes_per_splat", "MIN_QUAT_NORM", "ply_property"]
 
 #: Smallest quaternion norm: the renderer normalises in float32, where the squares of smaller
@@ -53,6 +53,9 @@ _NORMAL_PROPS = ("nx", "ny", "nz")
 #: segmentation tools write). A file may carry one of them; written back as ``object_id``.
 OBJECT_ID_PROPS = ("object_id", "obj_id", "instance_id", "segment_id")
 _REST_RE = re.compile(r"^f_rest_(\d+)$")
+#: Gaussian Grouping's per-splat identity encoding (``obj_dc_0..K-1``): not ids, but features
+#: whose clusters are the objects (``l3gs_opt.scene.segment.segment_scene(features=...)``).
+_IDENTITY_RE = re.compile(r"^obj_dc_(\d+)$")
 
 
 class SceneError(L3gsError, ValueError):
@@ -352,7 +355,8 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
     id_props = [p for p in OBJECT_ID_PROPS if p in names]
     if len(id_props) > 1:
         raise SceneError(id_props[1], f"{path}: a second object id property beside {id_props[0]!r}: which one is meant?")
-    known = set(_BASE_PROPS) | set(_NORMAL_PROPS) | set(OBJECT_ID_PROPS) | {"layer"} | {f"f_rest_{i}" for i in rest_idx}
+    known = set(_BASE_PROPS) | set(_NORMAL_PROPS) | set(OBJECT_ID_PROPS) | {"layer"} | {f"f_rest_{i}" for i in rest_idx} \
+        | {p for p in names if _IDENTITY_RE.match(p)}   # identity encodings: read_identity_features
     unknown = [p for p in names if p not in known]
     if unknown and not ignore_unknown:
         raise SceneError(unknown[0], f"{path}: unknown vertex property (pass ignore_unknown=True / "
@@ -380,6 +384,33 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         field, index = ply_property(exc.field, exc.index, k)
         message = str(exc).split(": ", 1)[1]
         raise SceneError(field, f"{path}: {message}", index) from None
+
+
+def read_identity_features(path) -> Optional[np.ndarray]:
+    """The identity encodings a Gaussian Grouping PLY carries (``obj_dc_0..K-1``), as float32
+    ``[N, K]``, or ``None`` when the file has none. :func:`read_ply` skips them (they are not part of
+    a :class:`SplatScene`); segmentation clusters them into objects.
+
+    Raises
+    ------
+    SceneError
+        As :func:`read_ply` for an unreadable file, and for a gap in ``obj_dc_*``.
+    """
+    path = check_regular_file(path, lambda f, m: SceneError(f, m), max_bytes=MAX_BINARY_BYTES)
+    header = _check_ply_header(path)
+    table = (_VertexTable.mapped(path, header) if header is not None else None) or _VertexTable.parsed(path)
+    idx = sorted(int(m.group(1)) for m in (_IDENTITY_RE.match(p) for p in table.names) if m)
+    if not idx:
+        return None
+    if idx != list(range(len(idx))):
+        gap = next(i for i in range(len(idx) + 1) if i not in idx)
+        raise SceneError(f"obj_dc_{gap}", f"{path}: missing (obj_dc_* must be numbered 0..K-1)")
+    (features,) = table.gather([[f"obj_dc_{i}" for i in idx]])
+    bad = ~np.isfinite(features)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise SceneError(f"obj_dc_{col}", f"{path}: {features[row, col]} is not finite", (int(row),))
+    return features
 
 
 _SCENE_FIELDS = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
