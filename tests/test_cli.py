@@ -166,3 +166,16 @@ def test_item_instances_go_through_solve_and_check(capsys, tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(data))
     code, _, err = run(capsys, "solve", str(tmp_path / "bad.json"))
     assert code == 2 and err.startswith("error: requires[0]") and len(err.strip().splitlines()) == 1
+
+
+def test_a_closed_pipe_stops_quietly(monkeypatch, capsys):
+    """``l3gs-opt ... | head``: the reader leaves; the command stops with 141 and no traceback."""
+    import os
+
+    r, w = os.pipe()
+    os.close(r)
+    out = os.fdopen(w, "w", buffering=1)
+    monkeypatch.setattr(sys, "stdout", out)
+    assert main(["utility", "list"]) == 141
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
