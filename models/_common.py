@@ -101,7 +101,9 @@ def add_holding(b: ModelBuilder, inst: Instance, red: Reduction, x: dict[Key, in
                 obj: np.ndarray | None = None) -> dict[Key, int]:
     """Binary ``y[j,l,t]`` = chunk (j, l) has arrived by the end of slot t, for t from its first
     possible arrival: ``y[t] - y[t-1] - x[t] = held`` (held only on the first row of a naive
-    model). ``obj`` ([J, L, T]) are the objective coefficients of y.
+    model). ``obj`` ([J, L, T]) are the objective coefficients of y. The rows are equalities, not
+    ``y <= ...``: with a negative layer utility (signed ``dU``) a model could otherwise fetch a
+    layer and leave it "unshown", which the client cannot do.
     """
     one = inst.J == 1
     y: dict[Key, int] = {}

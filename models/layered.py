@@ -3,7 +3,8 @@
 ``max sum_{j,l,t} dU[j,l,t+s] y[j,l,t]`` (s = 0, or 1 for next-slot availability) subject to
 per-slot or cumulative byte budgets on ``x``, ``y[t] = y[t-1] + x[t]`` (so each chunk arrives
 at most once), and layer order ``y[j,l,t] <= y[j,l-1,t]`` (``<= y[j,l-1,t-1]`` when same-slot
-layers are off). Problem III is the same model for a single object.
+layers are off). Problem III is the same model for a single object. ``dU`` may be negative (signed
+layer utilities): every term stays linear, and the holding equalities make a held layer count.
 """
 
 from __future__ import annotations

@@ -2,7 +2,9 @@
 
 Built once by the core's model code (:func:`l3gs_opt.models.build_model`, with presolve) and
 solved as an LP by HiGHS. Its value (plus the held constant) is an upper bound on the optimum,
-so ``(bound - objective) / bound`` is a certified gap.
+so ``(bound - objective) / bound`` is a certified gap. With signed layer utilities the
+relaxation is the same (every held layer counts with its sign); only its slack grows with the
+negative terms.
 """
 
 from __future__ import annotations
@@ -41,4 +43,8 @@ def lp_bound(instance: "Instance | ItemInstance", *, slot: int | None = None) ->
     if result.bound is None:
         return None, time.perf_counter() - started
     value = result.bound + model.constant
-    return value + LP_BOUND_SLACK * abs(value), time.perf_counter() - started
+    # The LP's error is relative to the terms it adds, not to their sum: with signed layer
+    # utilities (negative coefficients, a negative held constant) the value can be near 0 while
+    # the terms are not. Without negative terms this is ``abs(value)``, as before.
+    negative = float(-model.objective[model.objective < 0].sum()) + max(0.0, -model.constant)
+    return value + LP_BOUND_SLACK * (abs(value) + 2.0 * negative), time.perf_counter() - started

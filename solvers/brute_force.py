@@ -2,11 +2,14 @@
 
 The reference the tests hold every model and solver to. It shares no code with the models or
 with :mod:`l3gs_opt.problem.evaluate`: rules and objective are written out again here, plainly.
+Layered utilities may be negative: every layer held counts, whatever its sign, and nothing
+is pruned on a sign (every schedule is valued).
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import time
 
 from l3gs_opt.errors import SolveError
@@ -80,7 +83,9 @@ def solve_brute_force(instance: Instance, *, slot: int | None = None) -> Solutio
     count = len(choices) ** len(chunks)
     if count > MAX_SCHEDULES:
         raise SolveError(f"brute force: {count} candidate schedules exceed the limit of {MAX_SCHEDULES}")
-    best_value, best = -1.0, {}
+    # Below any schedule's value: with signed layer utilities every schedule, the empty one
+    # included, can be worth less than 0 (a negative layer already held).
+    best_value, best = -math.inf, {}
     for pick in itertools.product(choices, repeat=len(chunks)):
         when = {c: t for c, t in zip(chunks, pick) if t is not None}
         if not _feasible(inst, when, slot):

@@ -16,6 +16,12 @@ cumulative budget - one sequential link downloads the chunks in order and each a
 first slot whose cumulative bytes cover everything before it. Separate representation: a
 version is sent only if its time-averaged utility beats the best version held (or sent).
 Every answer carries the LP relaxation of Problem I/II as its bound.
+
+Signed layer utilities (layered ``dU < 0``): a fixed order skips the layers presolve drops (no
+run of layers from them up can add anything), and every answer is cut back, per object, to its
+delivered prefix of best value (:func:`~l3gs_opt.problem.evaluate.trim_losing_layers`), so a
+negative layer is kept only when the layers above it make it worth it. ``slope`` values whole
+levels by their cumulative utility (a level no better than a lower one is never an option).
 """
 
 from __future__ import annotations
@@ -28,7 +34,8 @@ import numpy as np
 
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
-from l3gs_opt.problem.presolve import shown_value
+from l3gs_opt.problem.evaluate import trim_losing_layers
+from l3gs_opt.problem.presolve import presolve, shown_value
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from . import _mckp
@@ -75,8 +82,13 @@ def pack_order(instance: Instance, order: list[tuple[int, int]]) -> list[tuple[i
     held = inst.held.copy()
     out: list[tuple[int, int, int]] = []
 
+    # Signed layer utilities: layers no optimum holds (presolve's rule) would only spend bytes.
+    keep = presolve(inst).active | inst.held if inst.layered and (inst.utility < 0).any() else None
+
     def useful(j: int, l: int) -> bool:
-        return inst.layered or mean[j, l] > best[j]
+        if inst.layered:
+            return keep is None or bool(keep[j, l])
+        return mean[j, l] > best[j]
 
     if inst.options.budget == "cumulative":
         cum = np.cumsum(np.asarray(inst.bandwidth, dtype=np.int64))
@@ -131,7 +143,7 @@ def _solve_order(instance: Instance, kind: str, *, slot: int | None, with_bound:
     if slot is not None:
         raise SolveError(f"method {kind!r} schedules the whole horizon: slot does not apply")
     started = time.perf_counter()
-    arrivals = pack_order(instance, chunk_order(instance, kind))
+    arrivals = trim_losing_layers(instance, pack_order(instance, chunk_order(instance, kind)))
     schedule_s = time.perf_counter() - started
     bound, bound_s = _bound(instance, with_bound)
     return finish_solution(instance, arrivals, problem=instance.problem, method=kind, status=Status.FEASIBLE,

@@ -8,7 +8,7 @@ first slot whose cumulative bandwidth covers it and everything before it:
 * any feasible schedule, listed by arrival slot (a layer after the layers below it), gives an
   order whose k-th chunk fits by that "greedy" slot ``t_k = min{t : sum_{s<=t} B[s] >= P_k}``
   (``P_k`` = bytes of the first k chunks), which is never later than its slot in the schedule;
-* held utility never decreases with an earlier arrival (utilities are >= 0), so the greedy
+* held utility never decreases with an earlier arrival (utilities ``>= 0``), so the greedy
   slots are at least as good, and they are feasible (the bytes by slot t are ``P_k <= sum B``).
 
 So the optimum is the best order. The value of an order depends only on which chunks precede
@@ -24,6 +24,14 @@ with ``gain`` the utility ``c`` adds from ``t(s)`` (``next_slot`` availability: 
 The optimum is ``max_s V(s)`` over the states whose bytes fit the whole horizon. States are
 processed in order of chunk count, vectorised over numpy arrays: ``prod_j (states of j)``
 states (layered J=5, L=4: 3,125; separate J=5, L=4: 1,048,576).
+
+**Signed layer utilities** (a layer with ``dU < 0`` somewhere): an earlier arrival can be worse,
+so the greedy slots are no longer best. A schedule is still an order with nondecreasing slots
+``a_k >= t_k`` (and every such order is feasible: the bytes by slot ``a_k`` are ``P_k <= sum B``),
+so the DP gains a slot axis: ``W(s, t)``, the best value of delivering ``s`` with every arrival in
+a slot ``<= t``, is ``max(W(s, t-1), max_c W(s - c, t) + gain(c, t))`` for ``t >= t(s)``. It has
+``T`` times the states (``max_states`` counts them) and is used only when some unheld layer's
+utility is negative.
 
 Supported: either representation, availability ``same_slot`` or ``next_slot``, held chunks.
 Rejected (:class:`~l3gs_opt.errors.SolveError`): the ``per_slot`` budget (a chunk's slot is not
@@ -107,7 +115,7 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
     instance : Instance
         Layered or separate, ``options.budget == "cumulative"``, same-slot layers allowed.
     max_states : int
-        Refuse larger state spaces (:func:`link_dp_states`).
+        Refuse larger state spaces (:func:`link_dp_states`; times T with signed layer utilities).
     time_limit_s : float, optional
         Not used (the DP is not interruptible); accepted so it plugs in like other methods.
 
@@ -133,6 +141,10 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
         raise SolveError(f"method 'link-dp': {n_states} states exceed max_states = {max_states}; use ilp")
     shift = 1 if inst.options.availability == "next_slot" else 0
     J, T = inst.J, inst.T
+    signed = inst.layered and bool((np.where(inst.held[None], 0.0, inst.utility) < 0).any())
+    if signed and n_states * T > max_states:
+        raise SolveError(f"method 'link-dp': {n_states} states x {T} slots (signed layer utilities need the slot "
+                         f"axis) exceed max_states = {max_states}; use ilp")
     objects = [_local_states(inst, j, shift) for j in range(J)]
     sizes = [len(c) for c, _, _ in objects]
     strides = np.ones(J, np.int64)
@@ -148,6 +160,9 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
     cum = np.cumsum(np.asarray([int(b) for b in inst.bandwidth], dtype=np.int64))
     slot = np.searchsorted(cum, nbytes, side="left")          # first slot covering the state's bytes
     fits = slot < T
+    if signed:
+        arrivals, dp_value = _signed_dp(inst, objects, local, strides, count, slot, fits)
+        return _finish(inst, arrivals, n_states, dp_value, t0)
     value = np.full(n_states, -np.inf)
     value[0] = 0.0                                             # every object at its held state
     back_state = np.full(n_states, -1, np.int64)
@@ -182,11 +197,63 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
         j, l = (int(v) for v in back_chunk[s])
         arrivals.append((j, l, int(slot[s])))
         s = int(back_state[s])
+    return _finish(inst, arrivals, n_states, float(value[best]), t0)
+
+
+def _finish(inst: Instance, arrivals: list, n_states: int, dp_value: float, t0: float) -> Solution:
     from l3gs_opt.problem.evaluate import evaluate_objective
 
     objective = evaluate_objective(inst, arrivals)
-    problem = ("I" if J > 1 else "III") if inst.layered else ("II" if J > 1 else "IV")
+    problem = ("I" if inst.J > 1 else "III") if inst.layered else ("II" if inst.J > 1 else "IV")
     # The DP enumerates every delivered set, so its best schedule is optimal: the bound is its value.
     return finish_solution(inst, arrivals, problem=problem, method="link-dp", status=Status.OPTIMAL,
                            bound=objective, runtime_s=time.perf_counter() - t0,
-                           details={"states": n_states, "dp_value": float(value[best])})
+                           details={"states": n_states, "dp_value": dp_value})
+
+
+def _signed_dp(inst: Instance, objects: list, local: list, strides: np.ndarray, count: np.ndarray,
+               slot: np.ndarray, fits: np.ndarray) -> tuple[list[tuple[int, int, int]], float]:
+    """The DP with a slot axis (module doc, signed layer utilities): arrivals and the DP's value.
+
+    ``direct[s, t]`` is the best value of ``s`` whose last chunk arrives exactly in slot t (``code``
+    says which chunk: ``j * L + l``); ``W = max.accumulate(direct)`` along t.
+    """
+    T, L = inst.T, inst.L
+    n = count.shape[0]
+    W = np.full((n, T), -np.inf)
+    W[0] = 0.0                                                  # every object at its held state
+    direct = np.full((n, T), -np.inf)
+    code = np.full((n, T), -1, np.int64)
+    before = np.arange(T)[None, :] < slot[:, None]             # slots too early for the state's bytes
+    order = np.argsort(count, kind="stable")
+    bounds = np.searchsorted(count[order], np.arange(count.max() + 2))
+    for k in range(1, int(count.max()) + 1):
+        states = order[bounds[k]:bounds[k + 1]]
+        states = states[fits[states]]
+        if states.size == 0:
+            continue
+        for j, (_, _, trans) in enumerate(objects):
+            loc = local[j][states]
+            for a, b, l, gain in trans:
+                sel = loc == b
+                if not sel.any():
+                    continue
+                gs = states[sel]
+                cand = W[gs - (b - a) * strides[j]] + gain[None, :]
+                cand[before[gs]] = -np.inf
+                better = cand > direct[gs]
+                if better.any():
+                    rows, cols = np.nonzero(better)
+                    direct[gs[rows], cols] = cand[rows, cols]
+                    code[gs[rows], cols] = j * L + l
+        W[states] = np.maximum.accumulate(direct[states], axis=1)
+    best = int(np.argmax(np.where(fits, W[:, T - 1], -np.inf)))
+    value = float(W[best, T - 1])
+    arrivals = []
+    s, t = best, T - 1
+    while s > 0:
+        t = int(np.nonzero(direct[s, :t + 1] == W[s, t])[0].max())   # the last chunk's slot
+        j, l = divmod(int(code[s, t]), L)
+        arrivals.append((j, l, t))
+        s -= int(strides[j])                                   # layered: one layer less of object j
+    return arrivals, value

@@ -20,6 +20,11 @@ How the instance's options are respected:
   MCKP. Nothing else arrives while it is in flight.
 * Separate representation: an option is one version; it replaces the held one, and its cost
   is the whole version.
+* Signed layer utilities: an option is a whole level valued by the cumulative ``dU`` of the
+  layers it adds, so a negative layer is sent only with the layers above it that make the
+  level worth more; a layer bought for its value at one slot may lose more later, so each
+  answer keeps, per object, its delivered prefix of best value
+  (:func:`~l3gs_opt.problem.evaluate.trim_losing_layers`).
 
 Every answer carries as ``bound`` the LP relaxation of Problem I/II (:func:`~.bounds.lp_bound`),
 so its gap is certified; ``details`` has the scheduling and bound seconds apart.
@@ -34,6 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.evaluate import trim_losing_layers
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import shown_value
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
@@ -166,7 +172,9 @@ def chunk_form(instance: Instance, *, future: bool) -> RollingForm:
         return tab, decode
 
     def finish(arrivals, **kw) -> Solution:
-        return finish_solution(inst, arrivals, problem=inst.problem, **kw)
+        # A layer worth buying at its slot may lose more later (signed dU): keep each object's
+        # best delivered prefix (unchanged without negative utilities).
+        return finish_solution(inst, trim_losing_layers(inst, arrivals), problem=inst.problem, **kw)
 
     return RollingForm(held=inst.held.copy(), table=table, arrival=lambda u, t: (u[0], u[1], t), finish=finish,
                        held_value=shown_value(inst)[1], bound_label="LP relaxation of Problem I/II")
@@ -320,6 +328,8 @@ def solve_mpc(instance: Any, horizon: int, *, slot: int | None = None, time_limi
                 spent += int(inst.cost[unit(j, l)])
         if cumulative:
             carry = int(bw[0]) - spent
+    if not items:
+        arrivals = list(trim_losing_layers(inst, arrivals))   # a window cannot see a layer's later losses
     schedule_s = time.perf_counter() - started
     bound, bound_s = _bound(inst, with_bound)
     details = {"schedule_s": schedule_s, "bound_s": bound_s, "windows_at_time_limit": int(window_limits),

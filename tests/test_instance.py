@@ -38,8 +38,10 @@ def base() -> dict:
      r"^utility\[1\]\[1\]: expected 2 entries \(layers\), got 1"),
     ({"utility": [[[1.0, 0.5], [0.2, 0.1]], [[1.0, 0.5], [0.0, 0.0]]]},
      r"^utility: has shape \(2, 2, 2\), expected \(T, J, L\) = \(3, 2, 2\)"),
-    ({"utility": [[[1.0, -0.5], [0.2, 0.1]], [[1.0, 0.5], [0.0, 0.0]], [[0.3, 0.5], [2.0, 1.0]]]},
-     r"^utility\[0\]\[0\]\[1\] = -0\.5: must be >= 0"),
+    # Signed layer utilities are allowed in the layered form only (tests/test_signed_utilities.py).
+    ({"representation": "separate",
+      "utility": [[[1.0, -0.5], [0.2, 0.1]], [[1.0, 0.5], [0.0, 0.0]], [[0.3, 0.5], [2.0, 1.0]]]},
+     r"^utility\[0\]\[0\]\[1\] = -0\.5: must be >= 0 \(a separate version's utility"),
     ({"utility": [[[1.0, float("nan")], [0.2, 0.1]], [[1.0, 0.5], [0.0, 0.0]], [[0.3, 0.5], [2.0, 1.0]]]},
      r"^utility\[0\]\[0\]\[1\] = nan: must be finite"),
     ({"utility": [[[1.0, 10**400], [0.2, 0.1]], [[1.0, 0.5], [0.0, 0.0]], [[0.3, 0.5], [2.0, 1.0]]]},

@@ -7,6 +7,11 @@ summation order), and feasibility is checked in exact integer bytes (Python ints
 A schedule is a collection of arrivals ``(j, l, t)``: chunk (j, l) arrives in slot t (0-based).
 For the single-slot problem (``slot=t``) every arrival is in slot t and the objective is the
 utility shown at slot t, held items included.
+
+Layered utilities may be negative (docs/design.md): every layer shown counts with its sign, so a
+schedule can be worth less than the empty one. :func:`trim_losing_layers` cuts each object's
+delivered layers back to its best prefix, which heuristics use so as never to keep a negative
+layer that no later layer makes worth it.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ __all__ = [
     "feasibility_violations",
     "is_feasible",
     "repair_schedule",
+    "trim_losing_layers",
 ]
 
 Arrival = tuple[int, int, int]
@@ -63,9 +69,10 @@ def _available(instance: Instance, slots: np.ndarray, slot: int | None) -> np.nd
 def evaluate_objective(instance: Instance, arrivals: Iterable[Arrival], *, slot: int | None = None) -> float:
     """Total utility of the schedule, held chunks included.
 
-    Layered: ``sum_t sum_{j,l} dU[t,j,l] * shown[t,j,l]``. Separate: ``sum_t sum_j max(0,
-    max_l U[t,j,l] * shown[t,j,l])`` (the best version held is shown). With ``slot=t`` only
-    slot t counts and a chunk arriving in t is shown at t.
+    Layered: ``sum_t sum_{j,l} dU[t,j,l] * shown[t,j,l]``, each term with its sign (a negative
+    layer held lowers the value). Separate: ``sum_t sum_j max(0, max_l U[t,j,l] * shown[t,j,l])``
+    (the best version held is shown; ``U >= 0``). With ``slot=t`` only slot t counts and a chunk
+    arriving in t is shown at t.
     """
     slots = arrival_slots(instance, arrivals)
     shown = _available(instance, slots, slot)
@@ -197,3 +204,52 @@ def repair_schedule(instance: Instance, arrivals: Iterable[Arrival], *,
         pool = [(j, l) for (j, l), t in current.items() if (t <= bad_t if cumulative else t == bad_t)]
         j, l = min(pool, key=lambda jl: (value[jl] / inst.cost[jl], -jl[1]))
         drop(j, l)
+
+
+def trim_losing_layers(instance: Instance, arrivals: Iterable[Sequence[int]], *,
+                       slot: int | None = None) -> tuple[Arrival, ...]:
+    """Layered: each object's delivered layers cut back to the prefix worth the most.
+
+    Object j holding ``h`` layers and receiving layers ``h..m`` keeps ``h..p`` for the ``p`` that
+    maximises ``sum_{l=h..p} value(l)`` (``p = h-1``: none), where ``value(l)`` is what layer l
+    adds from its first showing to the horizon (``slot=t``: at slot t); ties keep the shorter
+    prefix, which costs fewer bytes. Leaving out a top run of layers keeps a feasible schedule
+    feasible (bytes only freed, layer order kept) and, by the choice of ``p``, never lowers the
+    objective: a negative layer stays only when the layers above it recover its loss.
+
+    Instances without a negative utility (and separate ones) come back unchanged, as do layers
+    above a gap in an object's delivered run (the schedule is then infeasible; that is for
+    :func:`feasibility_violations` to say).
+
+    Returns
+    -------
+    tuple of (j, l, t)
+        The kept arrivals, normalised (:func:`normalize_arrivals`).
+    """
+    inst = instance
+    schedule = normalize_arrivals(arrivals)
+    if not inst.layered or not (inst.utility < 0).any():
+        return schedule
+    slots = np.full((inst.J, inst.L), NEVER, dtype=np.int64)
+    for j, l, t in schedule:
+        if 0 <= j < inst.J and 0 <= l < inst.L:
+            slots[j, l] = t
+    shift = 1 if inst.options.availability == "next_slot" else 0
+    drop: set[tuple[int, int]] = set()
+    for j in range(inst.J):
+        h = int(inst.held[j].sum())
+        values: list[float] = []
+        best, cut = 0.0, h
+        for l in range(h, inst.L):
+            a = int(slots[j, l])
+            if not 0 <= a < inst.T:
+                break
+            if slot is not None:
+                values.append(float(inst.utility[slot, j, l]))
+            else:
+                values.append(math.fsum(inst.utility[a + shift:, j, l].tolist()))
+            total = math.fsum(values)
+            if total > best:
+                best, cut = total, l + 1
+        drop.update((j, l) for l in range(cut, h + len(values)))
+    return tuple(a for a in schedule if (a[0], a[1]) not in drop)

@@ -8,9 +8,13 @@ Conventions (see docs/design.md): object ``j`` (0-based here), layer or version 
 
 * ``layered``: ``cost[j, l]`` is the per-layer cost ``dc[j,l]`` in bytes and
   ``utility[t, j, l]`` the per-layer utility ``dU[j,l,t]``; layer ``l`` is useful only on top
-  of layers ``< l``.
+  of layers ``< l``. ``dU`` may be negative (a refinement layer that makes the picture worse at
+  that distance): every layer held is shown, so a negative layer is worth fetching only as a step
+  to a later layer that recovers more than it loses (docs/design.md, "signed layer utilities").
 * ``separate``: ``cost[j, l]`` is the whole cost of version ``l`` and ``utility[t, j, l]``
-  its utility ``U[j,l,t]``; the best version held is the one shown.
+  its utility ``U[j,l,t]``, ``>= 0``; the best version held is the one shown. A version worse
+  than a lower one is a smaller ``U``, never a negative one: the objective shows at least
+  nothing (0), so a negative ``U`` would be silently read as 0 and is refused instead.
 """
 
 from __future__ import annotations
@@ -40,9 +44,10 @@ SCHEMA = "l3gs-opt/instance@1"
 #: Largest byte count accepted (2**53): every byte count and budget is then exact in float64,
 #: which the LP/MIP backends use for their rows.
 MAX_BYTES = 2**53
-#: Largest sum of all utilities of an instance. Every objective, bound and gap is then a finite
-#: float64 with room to spare (1e300 is 2**-27 of the largest float), whatever the slots add up;
-#: single utilities down to the smallest subnormal (5e-324) are accepted and solved.
+#: Largest sum of the magnitudes of all utilities of an instance (signed layer utilities count by
+#: their absolute value). Every objective, bound and gap is then a finite float64 with room to
+#: spare (1e300 is 2**-27 of the largest float), whatever the slots add up; single utilities down
+#: to the smallest subnormal (5e-324) are accepted and solved.
 MAX_UTILITY_TOTAL = 1e300
 REPRESENTATIONS = ("layered", "separate")
 _AVAILABILITY = ("same_slot", "next_slot")
@@ -186,32 +191,40 @@ def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarr
     return out
 
 
-def _utility_array(value: Any) -> np.ndarray:
+def _utility_array(value: Any, representation: str) -> np.ndarray:
     arr = np.asarray(value)
     if arr.ndim != 3:
         raise InstanceError("utility", f"must be a 3-dimensional array (T, J, L), got {arr.ndim} dimensions")
     if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
         raise InstanceError("utility", f"must hold numbers, got dtype {arr.dtype}")
-    return checked_utility_values(arr, InstanceError)
+    signed = representation == "layered"
+    why = "" if signed else " (a separate version's utility U; a version worse than another is a smaller U)"
+    return checked_utility_values(arr, InstanceError, signed=signed, why=why)
 
 
-def checked_utility_values(arr: np.ndarray, error: type[InstanceError]) -> np.ndarray:
-    """``arr`` as a read-only float64 array of utilities: each finite and >= 0 (subnormals
-    included), and all of them together at most :data:`MAX_UTILITY_TOTAL`, so that no schedule's
-    objective, bound or gap can overflow float64. Faults are ``error("utility", ...)``."""
+def checked_utility_values(arr: np.ndarray, error: type[InstanceError], *, signed: bool = False,
+                           why: str = "") -> np.ndarray:
+    """``arr`` as a read-only float64 array of utilities: each finite (subnormals included), each
+    ``>= 0`` unless ``signed`` (the layered form's per-layer ``dU``), and their magnitudes together
+    at most :data:`MAX_UTILITY_TOTAL`, so that no schedule's objective, bound or gap can overflow
+    float64 (with signs, a sum of positive terms alone must stay finite too). Faults are
+    ``error("utility", ...)`` naming the first index at fault; ``why`` is appended to the
+    message of a negative value."""
     out = arr.astype(np.float64)
     bad = ~np.isfinite(out)
     if bad.any():
         idx = _first_index(bad)
         raise error("utility", f"= {_show(out[idx])}: must be finite", idx)
-    neg = out < 0
-    if neg.any():
-        idx = _first_index(neg)
-        raise error("utility", f"= {_show(out[idx])}: must be >= 0", idx)
+    if not signed:
+        neg = out < 0
+        if neg.any():
+            idx = _first_index(neg)
+            raise error("utility", f"= {_show(out[idx])}: must be >= 0{why}", idx)
     with np.errstate(over="ignore"):
-        total = float(out.sum())
+        total = float(np.abs(out).sum())
     if not total <= MAX_UTILITY_TOTAL:
-        raise error("utility", f"sums to {total:.3g}: all utilities together must be at most {MAX_UTILITY_TOTAL:g} "
+        what = "all utilities together" if not signed else "all |utilities| together"
+        raise error("utility", f"sums to {total:.3g}: {what} must be at most {MAX_UTILITY_TOTAL:g} "
                                "(an objective summed over slots must stay a finite float64); scale them down")
     out.setflags(write=False)
     return out
@@ -229,7 +242,8 @@ class Instance:
     cost : array of int, shape [J, L]
         Bytes of each chunk: per-layer cost (layered) or whole-version cost (separate). > 0.
     utility : array of float, shape [T, J, L]
-        Per-layer utility ``dU`` (layered) or per-version utility ``U`` (separate); >= 0.
+        Per-layer utility ``dU`` (layered; finite, any sign: a negative layer is fetched only as a
+        step to a better level) or per-version utility ``U`` (separate; finite, >= 0).
     held : array of bool, shape [J, L], optional
         What the client already holds; for layered objects a prefix of the layers.
     slot_s : float
@@ -243,7 +257,8 @@ class Instance:
     Raises
     ------
     InstanceError
-        Naming the field and index at fault.
+        Naming the field and index at fault (e.g. ``utility[0][1][2] = -0.5: must be >= 0`` for
+        a separate instance, ``utility[...] = nan: must be finite`` for either).
     """
 
     representation: str
@@ -264,7 +279,7 @@ class Instance:
         if bandwidth.shape[0] < 1:
             raise InstanceError("bandwidth", "must have at least one slot")
         cost = _byte_array(self.cost, "cost", 2, positive=True)
-        utility = _utility_array(self.utility)
+        utility = _utility_array(self.utility, self.representation)
         T, (J, L) = bandwidth.shape[0], cost.shape
         if J > 0 and L < 1:
             raise InstanceError("cost", "every object needs at least one layer or version")

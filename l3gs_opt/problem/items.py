@@ -471,9 +471,22 @@ def items_from_instance(instance: Instance) -> ItemInstance:
     one group per object (its versions replace each other), no edges. Costs, utilities, held
     chunks, bandwidth, options and slot length carry over unchanged, so both forms have the same
     schedules (:func:`instance_arrivals` maps one back) and the same objective.
+
+    Raises
+    ------
+    ItemInstanceError
+        A layered instance with a negative layer utility: a group of the item form shows
+        ``max(0, ...)``, so a negative singleton item would be read as 0 (not the layered
+        objective, where every held layer counts); the item form keeps utilities ``>= 0``.
     """
     inst = instance
     J, L = inst.J, inst.L
+    negative = inst.utility < 0
+    if negative.any():
+        t, j, l = (int(v) for v in np.argwhere(negative)[0])
+        raise ItemInstanceError("utility", f"= {float(inst.utility[t, j, l])!r}: a negative layer utility has no item "
+                                           "form (a group shows at least nothing, 0); solve the layered instance "
+                                           "itself", (t, j, l))
     items = np.arange(J * L, dtype=np.int64)
     objects = items // L if L else items
     if inst.layered:

@@ -9,16 +9,29 @@ slot, and from which slot a chunk can first be held. Rules, each safe for the ex
   with zero bandwidth takes no arrivals under per-slot budgets;
 * layered: layer l cannot arrive before the earliest slot layer l-1 can (strictly after it
   when same-slot layers are off), so a layer above one that never fits never fits either;
-* a chunk is dropped when it (and, layered, every layer above it) adds no utility in any slot
-  it could be shown in;
-* cumulative budget with same-slot layers: a slot with zero bandwidth takes no arrivals,
-  because moving all of its arrivals one slot earlier is feasible (the cumulative budget is
-  the same) and never worse (utilities are non-negative). With strict layers that move could
-  break a layer order, so there the slot is kept.
+* separate: a version is dropped when it adds no utility above the best held version in any
+  slot it could be shown in;
+* layered, with signed layer utilities ``dU`` (docs/design.md): let ``best[l]`` be the most
+  layer l can add, over the slots it may arrive in, from its first showing to the horizon (a
+  suffix sum of ``dU``; negative when every suffix is). Layer l is dropped, with every layer
+  above it, when no run of layers starting at it can add anything: ``sum_{k=l..m} best[k] <= 0``
+  for every ``m >= l``. Then any schedule holding layers ``l..m`` loses nothing by leaving them
+  out (it only frees bytes), so some optimum never holds layer l. A layer with ``dU < 0`` under
+  a layer that recovers more is kept: it is a step to a better level. With ``dU >= 0`` this is
+  the plain rule "no layer from l up adds anything";
+* cumulative budget with same-slot layers: a slot t with zero bandwidth takes no arrivals of
+  object j when j's layers all have ``dU >= 0`` at the slot they would then be shown from
+  (t-1, or t under next-slot availability), because moving all of j's arrivals of slot t one
+  slot earlier is feasible (the cumulative budget is the same) and never worse. A layer with a
+  negative ``dU`` there may be better late, so such an object keeps the slot. With strict layers
+  the move could break a layer order, so there the slot is kept.
 
 Single-slot MCKP options are reduced by :func:`mckp_options` (dominated levels removed: a
-level that costs at least as much as another and is worth no more). LP-dominated levels
-(below the upper convex hull) are *not* removed: they can be in the integer optimum.
+level that costs at least as much as another and is worth no more). An option is a whole level,
+valued by the *cumulative* utility of the layers it adds, so a negative layer is never an option
+of its own unless it is worth something with the layers under it, and a level above it that
+recovers stays an option. LP-dominated levels (below the upper convex hull) are *not* removed:
+they can be in the integer optimum.
 """
 
 from __future__ import annotations
@@ -46,8 +59,8 @@ class Reduction:
     active : bool array [J, L]
         Chunk gets variables.
     gain : float array [T, J, L]
-        Objective coefficient of "chunk shown at slot t": dU (layered) or the version's utility
-        above the best held version, clipped at 0 (separate).
+        Objective coefficient of "chunk shown at slot t": dU (layered, any sign; 0 for held
+        layers) or the version's utility above the best held version, clipped at 0 (separate).
     constant : float
         Utility of the held chunks (separate: of the best held version), summed over slots.
     stats : dict
@@ -98,7 +111,12 @@ def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
         if inst.options.same_slot_layers:
             zero = bandwidth == 0
             zero[0] = False  # slot 0 with zero bandwidth already admits nothing (cum = 0)
-            fits &= ~zero[None, None, :]
+            # Object j's arrivals of a zero slot t move to t-1 at no loss when its layers are all
+            # worth >= 0 where they would then be shown (slot t-1+shift <= T-1).
+            shift = 1 if inst.options.availability == "next_slot" else 0
+            earlier = np.ones((J, T), dtype=bool)
+            earlier[:, 1:] = (gain[shift:T - 1 + shift] >= 0).all(axis=2).T
+            fits &= ~(zero[None, :] & earlier)[:, None, :]
     fits &= ~inst.held[:, :, None]
     slots = np.arange(T)
     first = np.full((J, L), T, dtype=np.int64)
@@ -115,16 +133,14 @@ def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
     else:
         any_fit = fits.any(axis=2)
         first = np.where(any_fit, fits.argmax(axis=2), T)
-    # Value a chunk can still add from its earliest possible showing on.
-    shift = 1 if inst.options.availability == "next_slot" else 0
-    shown_from = first + shift
-    mask = slots[:, None, None] >= shown_from[None]
-    value = np.where(mask, gain, 0.0).sum(axis=0)  # [J, L]
-    useful = value > 0
-    if inst.layered:
-        # A layer with no value of its own is still needed under a useful layer above it.
-        useful = np.flip(np.logical_or.accumulate(np.flip(useful, axis=1), axis=1), axis=1)
     never_fit = (first >= T) & ~inst.held
+    if inst.layered:
+        useful = _layers_worth_keeping(inst, gain, fits, never_fit)
+    else:
+        # Value a version can still add from its earliest possible showing on (gains >= 0).
+        shift = 1 if inst.options.availability == "next_slot" else 0
+        mask = slots[:, None, None] >= (first + shift)[None]
+        useful = np.where(mask, gain, 0.0).sum(axis=0) > 0  # [J, L]
     active = useful & ~never_fit & ~inst.held
     arrive = fits & active[:, :, None]
     stats = {
@@ -137,6 +153,39 @@ def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
     }
     return Reduction(arrive=arrive, first=np.where(active, first, T), active=active, gain=gain,
                      constant=constant, stats=stats)
+
+
+def _layers_worth_keeping(inst: Instance, gain: np.ndarray, fits: np.ndarray, never_fit: np.ndarray) -> np.ndarray:
+    """Layered: ``[J, L]`` layers some optimum may hold (see the module doc's signed rule).
+
+    ``best[j, l]`` is the largest suffix sum of ``gain[:, j, l]`` from the first showing of an
+    arrival slot ``fits`` allows (``-inf`` when none does). Layer l is useless when every run
+    ``l..m`` adds at most 0; it and every layer above a useless one are dropped. Sums are compared
+    with a margin for their float round-off, so a run whose true sum is positive is never dropped
+    (a run that sums to 0 within round-off is kept: harmless, it only keeps a variable).
+    """
+    T, J, L = gain.shape
+    shift = 1 if inst.options.availability == "next_slot" else 0
+    g = np.moveaxis(gain, 0, -1)                                          # [J, L, T]
+    suffix = np.concatenate([np.flip(np.cumsum(np.flip(g, axis=2), axis=2), axis=2),
+                             np.zeros((J, L, 1 + shift))], axis=2)        # suffix[t] = sum_{t' >= t}
+    shown = suffix[:, :, shift:shift + T]                                 # value of arriving in slot a
+    best = np.where(fits, shown, -np.inf).max(axis=2, initial=-np.inf)
+    best = np.where(never_fit, -np.inf, best)
+    # Magnitude of the terms in the suffixes compared (the earliest arrival's suffix holds them all).
+    magnitude = np.concatenate([np.flip(np.cumsum(np.flip(np.abs(g), axis=2), axis=2), axis=2),
+                                np.zeros((J, L, 1 + shift))], axis=2)[:, :, shift:shift + T]
+    size = np.where(fits, magnitude, 0.0).max(axis=2, initial=0.0)
+    # Each suffix has at most T terms and a run adds at most L of them: (T + L + 2) ulps of the
+    # magnitudes bound the round-off; 0 when every term that can be shown is 0, so a layer worth
+    # exactly nothing is dropped as it was before signed utilities.
+    ulp = (T + L + 2) * np.finfo(np.float64).eps
+    useless = np.zeros((J, L), dtype=bool)
+    for l in range(L):
+        run = np.cumsum(best[:, l:], axis=1)
+        margin = ulp * np.cumsum(size[:, l:], axis=1)
+        useless[:, l] = ~inst.held[:, l] & (run + margin <= 0).all(axis=1)
+    return np.logical_and.accumulate(~useless, axis=1)
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,10 +13,12 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Iterable, Mapping
 
+import numpy as np
+
 from l3gs_opt.problem.evaluate import Arrival, evaluate_objective, feasibility_violations, normalize_arrivals, repair_schedule
 from l3gs_opt.problem.instance import Instance
 
-__all__ = ["Status", "ModelSize", "Solution", "GAP_TOL", "relative_gap", "finish_solution"]
+__all__ = ["Status", "ModelSize", "Solution", "GAP_TOL", "relative_gap", "utility_scale", "finish_solution"]
 
 #: Relative gap under which an answer counts as proven optimal. Backends are run with a zero
 #: gap tolerance; this only absorbs float round-off between a backend's bound and our
@@ -46,17 +48,32 @@ class ModelSize:
     nonzeros: int
 
 
-def relative_gap(objective: float, bound: float | None) -> float | None:
-    """``(bound - objective) / |bound|``, 0 when both are 0, None without a bound.
+def relative_gap(objective: float, bound: float | None, scale: float | None = None) -> float | None:
+    """``(bound - objective) / max(|bound|, scale)``, 0 when both are equal, None without a bound.
 
-    Objectives are sums of non-negative utilities, so the gap lies in [0, 1] when the bound
-    is valid.
+    Objectives of non-negative utilities: ``scale`` None, the gap lies in [0, 1] when the bound is
+    valid. Signed layer utilities (``dU < 0``): the optimum can be 0 (or near it) while its terms are
+    not, and a bound off by round-off would read as a gap of 1; ``scale`` (:func:`utility_scale`,
+    the sum of the utilities' magnitudes) measures the gap against the size of the terms instead.
     """
     if bound is None or not math.isfinite(bound):
         return None
     if bound == objective:
         return 0.0
-    return (bound - objective) / abs(bound) if bound != 0 else math.inf
+    denom = max(abs(bound), scale or 0.0)
+    return (bound - objective) / denom if denom != 0 else math.inf
+
+
+def utility_scale(instance: Any) -> float | None:
+    """The sum of the magnitudes of ``instance``'s utilities when some are negative, else None
+    (the scale of :func:`relative_gap`)."""
+    u = getattr(instance, "utility", None)
+    if u is None:
+        return None
+    u = np.asarray(u, dtype=np.float64)
+    if u.size == 0 or u.min() >= 0:
+        return None
+    return math.fsum(np.abs(u).ravel().tolist())
 
 
 @dataclass(frozen=True)
@@ -194,7 +211,7 @@ def finish_solution(
         bound = None
     elif bound is not None and bound < objective:
         bound = objective
-    gap = relative_gap(objective, bound)
+    gap = relative_gap(objective, bound, utility_scale(instance))
     if status is Status.OPTIMAL and (gap is None or gap > GAP_TOL):
         notes.append(f"claimed optimal but gap to bound is {gap}; reported as feasible")
         status = Status.FEASIBLE

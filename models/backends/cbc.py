@@ -91,8 +91,16 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     finally:
         os.unlink(log_path)
     raw = [v.varValue for v in xs]
-    has_solution = bool(xs) and all(v is not None for v in raw)
-    values = np.array(raw, dtype=np.float64) if has_solution else None
+    # PuLP leaves out (value None) a variable in no row and not in the objective: any value in its
+    # bounds is optimal, so it gets the one nearest 0. Only a missing used variable means "no solution".
+    used = np.zeros(len(xs), dtype=bool)
+    used[nz] = True
+    used[csr.indices] = True
+    has_solution = bool(xs) and all(v is not None for v, u in zip(raw, used) if u)
+    values = None
+    if has_solution:
+        values = np.array([v if v is not None else min(max(0.0, model.lb[i]), model.ub[i])
+                           for i, v in enumerate(raw)], dtype=np.float64)
     found = _RESULT.search(log)
     result = found.group(1).strip() if found else ""
     objective = float(values @ model.objective) if values is not None else None

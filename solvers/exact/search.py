@@ -42,6 +42,12 @@ the answer carries. Supported: layered instances (Problems I, III) with per-slot
 availability, same-slot or strict layers. Rejected with a :class:`~l3gs_opt.errors.SolveError`:
 the separate representation (Problems II/IV) and the ``cumulative`` budget (see
 :func:`.lagrange.check_supported`); use ``ilp`` for those.
+
+Signed layer utilities (``dU < 0``) need nothing special: Problem A's profits ``P[i,t]`` are then
+signed too, the Lagrangian bound holds for any sign (each slot's knapsack takes only positive
+reduced profits, and a lower layer's is raised by its upper layer's precedence multiplier), every
+primal move is accepted only when it raises the exactly summed value, and presolve keeps a
+negative layer exactly when a run of layers above it may recover it.
 """
 
 from __future__ import annotations
@@ -58,7 +64,7 @@ import numpy as np
 
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
-from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap
+from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
 from .colgen import ColumnPool, column_generation
 from . import lagrange
@@ -136,9 +142,11 @@ def local_search(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, forc
                  deadline: float | None = None, max_swaps: int = 2000) -> np.ndarray:
     """Improve a feasible assignment (slot per item, -1 never) without breaking it.
 
-    Moves: a chunk to the earliest slot that fits (``P[i,t]`` never grows with t, so earlier is
-    never worse), an unscheduled chunk in; then the best exchange of two chunks (one moving
-    earlier into the other's slot, the other later or out), repeated. Forced chunks stay put.
+    Moves: a chunk to an earlier slot that fits (the one of largest ``P[i,t]``, earliest on ties:
+    with ``dU >= 0``, ``P[i,t]`` never grows with t, so that is the earliest; with signed layer
+    utilities a later one may be worth more), an unscheduled chunk in; then the best exchange of
+    two chunks (one moving earlier into the other's slot, the other later or out), repeated.
+    Every move raises the value. Forced chunks stay put.
     """
     assign = assign.copy()
     forced = forced or {}
@@ -176,7 +184,7 @@ def local_search(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, forc
                 ok = allowed[i, first:last] & (spare[first:last] >= cost[i])
                 if not ok.any():
                     continue
-                t = first + int(np.argmax(ok))
+                t = first + int(np.argmax(np.where(ok, profit_ext[i, first:last], -np.inf)))
                 if profit_ext[i, t] <= profit_ext[i, cur]:
                     continue
                 if assign[i] >= 0:
@@ -762,7 +770,7 @@ class _Search:
     def finish(self) -> Solution:
         """Status and gap, decided once (through :func:`relative_gap`), and the checked solution."""
         stopped = self.hit_limit or self.out_of_time() or (self.max_nodes is not None and self.nodes >= self.max_nodes)
-        gap = relative_gap(self.z, self.bound)
+        gap = relative_gap(self.z, self.bound, utility_scale(self.instance))
         if gap is not None and gap <= GAP_TOL:
             status, message = Status.OPTIMAL, ""
         elif stopped:
@@ -792,7 +800,8 @@ def _children(data: GapData, cg: Any, mask: np.ndarray, forced: Mapping[int, int
         return [(dict(forced), by), (dict(forced), after)]
     frac = np.minimum(x, 1.0 - x) * (mask & (x > FRACTIONAL_TOL) & (x < 1 - FRACTIONAL_TOL))
     if frac.max(initial=0.0) > 0:
-        score = frac * (1.0 + data.profit / (data.profit.max() + 1e-300))
+        # Profits may be negative (signed layer utilities): weight by their size, in [0, 2].
+        score = frac * (1.0 + data.profit / (np.abs(data.profit).max() + 1e-300))
         i, t = np.unravel_index(int(np.argmax(score)), score.shape)
     else:
         diff = cg.value.x & (x < 0.5) & mask
@@ -804,7 +813,8 @@ def _children(data: GapData, cg: Any, mask: np.ndarray, forced: Mapping[int, int
                 diff[i_f, :] = False
         if not diff.any():
             return None
-        i, t = np.unravel_index(int(np.argmax(diff * (data.profit + 1.0))), diff.shape)
+        # Among the candidates only (a negative profit must not lose to a non-candidate's 0).
+        i, t = np.unravel_index(int(np.argmax(np.where(diff, data.profit, -np.inf))), diff.shape)
     i, t = int(i), int(t)
     mask_zero = mask.copy()
     mask_zero[i, t] = False
