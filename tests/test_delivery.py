@@ -312,6 +312,25 @@ def test_bucket_with_a_fake_clock():
     assert late.reserve(500) == pytest.approx(0.5)
 
 
+def test_piece_follows_the_current_slot_rate():
+    """10 ms of the current slot's rate, clamped to [MIN_PIECE_BYTES, burst]; the trace repeats and a
+    resumed session counts from its start slot."""
+    from l3gs_opt.delivery.shaping import MIN_PIECE_BYTES
+
+    now = [0.0]
+    sh = TraceShaper([1_000_000, 50_000, 1_000], clock=lambda: now[0])
+    assert sh.burst_bytes == 10_000
+    b = sh.session("a")
+    assert b.piece_bytes() == 10_000                                   # 10 ms of 1 MB/s
+    now[0] = 1.5
+    assert b.piece_bytes() == 500                                      # 10 ms of 50 kB/s
+    now[0] = 2.5
+    assert b.piece_bytes() == MIN_PIECE_BYTES                          # 10 B would be a write per 10 B
+    now[0] = 3.2
+    assert b.piece_bytes() == 10_000                                   # the trace repeats
+    assert sh.session("r", start_slot=1).piece_bytes() == 500          # slot 1 for a resumed client
+
+
 def test_shaping_accuracy_over_three_seconds(world):
     """Bytes received per second on loopback follow a 3 s trace.
 
@@ -453,6 +472,79 @@ def test_fetch_resumes_the_unit_in_flight(world, tmp_path, monkeypatch):
         part = out / "fetched" / f"c{c.index}.bin"
         if part.exists():
             assert body[c.start:c.end].startswith(part.read_bytes())
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_fetch_survives_a_server_restart(world, tmp_path):
+    """The server stops mid-chunk and comes back 1.5 s later on the same port: the client retries,
+    resumes the chunk from the first byte it lacks (the received bytes are the file's, hash-checked
+    when a chunk completes) and finishes every slot; the slots of the outage record the retries."""
+    import threading
+
+    from l3gs_opt.simulator.simulation import SimConfig
+
+    trace_file = tmp_path / "trace.txt"
+    trace_file.write_text("0.24\n" * 6)          # 30 kB per 1 s slot: every chunk spans slots
+    config = SimConfig(width=32, height=24, samples_per_slot=1)
+    port, out = _free_port(), tmp_path / "out"
+    first = start_server(world["single"], port=port, trace=str(trace_file), shape_anonymous=False)
+    restarted = []
+
+    def bounce():
+        time.sleep(2.3)                           # slot 2 of the run: a transfer is in flight
+        first.stop()
+        time.sleep(1.5)
+        restarted.append(start_server(world["single"], port=port, trace=str(trace_file), shape_anonymous=False))
+
+    bouncer = threading.Thread(target=bounce)
+    bouncer.start()
+    try:
+        result = fetch(first.url, str(trace_file), world["log"], "l3gs", out, slots=6, config=config)
+    finally:
+        bouncer.join()
+        first.stop()
+        for h in restarted:
+            h.stop()
+    recs = [json.loads(line) for line in (out / "slots.jsonl").read_text().splitlines()]
+    assert [r["slot"] for r in recs] == list(range(6)) and result.summary["slots"] == 6
+    assert sum(r["fetch"]["retries"] for r in recs) > 0
+    got = [r["fetch"]["bytes_received"] for r in recs]
+    assert got[5] > 0 and min(got[2:4]) < 30_000 * 0.8      # the outage cost bytes, the end received again
+    body = (world["single"] / "chunks.bin").read_bytes()
+    for c in read_stream(world["single"]).chunks:
+        part = out / "fetched" / f"c{c.index}.bin"
+        if part.exists():
+            assert body[c.start:c.end].startswith(part.read_bytes())
+
+
+def test_fetch_gives_up_on_a_server_that_stays_away(world, tmp_path):
+    """With a 1 s retry window and the server gone for good, the fetch fails with one named error
+    (no hang, no traceback) within the slot it was in plus the window."""
+    from l3gs_opt.simulator.simulation import SimConfig
+
+    trace_file = tmp_path / "trace.txt"
+    trace_file.write_text("0.24\n" * 6)
+    config = SimConfig(width=32, height=24, samples_per_slot=1)
+    port = _free_port()
+    handle = start_server(world["single"], port=port, trace=str(trace_file), shape_anonymous=False)
+    import threading
+
+    stopper = threading.Timer(1.5, handle.stop)
+    stopper.start()
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(FetchError, match=r"chunks\[\d+\]: .*no byte for 1 s of retries"):
+            fetch(handle.url, str(trace_file), world["log"], "l3gs", tmp_path / "out", slots=6, config=config,
+                  retry_s=1.0)
+    finally:
+        stopper.join()
+        handle.stop()
+    assert time.monotonic() - t0 < 8.0
 
 
 def test_cli_fetch_json(world, tmp_path, capsys):

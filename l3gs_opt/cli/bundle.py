@@ -1,4 +1,4 @@
-"""CLI subcommands for streamable bundles: ``bundle export`` and ``bundle info``.
+"""CLI subcommands for streamable bundles: ``bundle export``, ``bundle tables`` and ``bundle info``.
 
 Wire into the main parser with ``register(subparsers)``; each subcommand sets ``func`` to a
 handler ``handler(args) -> int``. Bad input raises :class:`l3gs_opt.errors.L3gsError` subclasses
@@ -19,6 +19,33 @@ def _cmd_bundle_export(args: argparse.Namespace) -> int:
     index = read_stream(path)  # what a client will read: checked before we say "wrote"
     print(f"wrote {path}: {len(index.chunks)} chunks, {index.total_bytes} bytes in {len(index.filenames)} "
           f"file(s) ({index.pack}, alignment {index.alignment} bytes)")
+    return 0
+
+
+def _numbers(text: str, field: str, kind=float) -> list:
+    from l3gs_opt.delivery.tables import TablesError
+
+    try:
+        return [kind(x) for x in text.split(",")]
+    except ValueError:
+        raise TablesError(field, f"{text!r}: expected comma-separated {'integers' if kind is int else 'numbers'}") \
+            from None
+
+
+def _cmd_bundle_tables(args: argparse.Namespace) -> int:
+    from l3gs_opt.delivery.tables import TablesError, export_tables
+
+    counts = _numbers(args.grid, "--grid", int)
+    if len(counts) != 3:
+        raise TablesError("--grid", f"{args.grid!r}: expected NX,NY,NZ")
+    path = export_tables(args.stream, utility=args.utility, views=args.views.split(","), counts=counts,
+                         margin=args.margin, yaw_steps=args.yaw_steps, pitches_deg=_numbers(args.pitches, "--pitches"),
+                         up=args.up, width=args.width, height=args.height, fov_deg=args.fov,
+                         progress=not args.no_progress)
+    from l3gs_opt.delivery.tables import read_tables
+
+    for e in read_tables(path):
+        print(f"wrote {path.parent / e['file']}: {e['utility']} / {e['view']}, {e['bytes']} bytes")
     return 0
 
 
@@ -70,6 +97,21 @@ def register(subparsers) -> None:
     e.add_argument("--align", type=int, default=DEFAULT_ALIGNMENT, metavar="BYTES",
                    help=f"chunk start alignment in chunks.bin, a power of two (default {DEFAULT_ALIGNMENT})")
     e.set_defaults(func=_cmd_bundle_export)
+    t = bsub.add_parser("tables", help="precompute utility tables a client values chunks by before it holds any "
+                                       "(served with the export; fetch --catalogue tables)")
+    t.add_argument("stream", metavar="STREAM_DIR", help="export folder (index.json)")
+    t.add_argument("--utility", default="eq1", help="a held-free splat utility (eq1, visibility, ...)")
+    t.add_argument("--views", default="object", help="comma-separated: object (per-object methods), scene")
+    t.add_argument("--grid", default="5,5,2", metavar="NX,NY,NZ", help="positions per axis over the scene's box")
+    t.add_argument("--margin", type=float, default=0.5, help="box widened by this times its extent per side")
+    t.add_argument("--yaw-steps", type=int, default=12)
+    t.add_argument("--pitches", default="-20,0,20", metavar="DEG,...")
+    t.add_argument("--up", default="z", choices=["x", "y", "z"])
+    t.add_argument("--width", type=int, default=160, help="the client's image width (pixels)")
+    t.add_argument("--height", type=int, default=120)
+    t.add_argument("--fov", type=float, default=70.0, help="the client's horizontal field of view (degrees)")
+    t.add_argument("--no-progress", action="store_true")
+    t.set_defaults(func=_cmd_bundle_tables)
     i = bsub.add_parser("info", help="check a stream export's index and summarise it")
     i.add_argument("stream", metavar="STREAM_DIR", help="export folder (or its index.json)")
     i.add_argument("--verify", action="store_true", help="also hash every chunk against the index")

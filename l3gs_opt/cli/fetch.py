@@ -30,7 +30,7 @@ def _cmd_fetch(args: argparse.Namespace) -> int:
     result = fetch(args.url, args.trace, poses, args.method, args.out, slots=args.slots, resume=args.resume,
                    config=config, solver=args.solver, mbps=args.mbps, start=args.start,
                    trace_format=args.trace_format, mapping=mapping, reference=args.teacher,
-                   progress=not args.no_progress)
+                   retry_s=args.retry_s, catalogue=args.catalogue, progress=not args.no_progress)
     s = result.summary
     if args.json:
         from l3gs_opt.jsonout import dumps
@@ -81,6 +81,13 @@ def register(subparsers) -> None:
     p.add_argument("--slots", type=int, default=60, help="slots to run, each slot-s seconds of real time")
     p.add_argument("--slot-s", type=float, default=1.0)
     p.add_argument("--resume", action="store_true", help="continue an interrupted fetch into --out")
+    p.add_argument("--catalogue", default="full", choices=["full", "tables"],
+                   help="what the client knows before slot 0: full (the whole bundle, read unpaced: any utility, as "
+                        "the simulator's client) or tables (the index and the server's utility tables only: "
+                        "'l3gs-opt bundle tables'; renders only what arrived)")
+    p.add_argument("--retry-s", type=float, default=30.0,
+                   help="seconds a transfer retries a lost connection (a server restart) without a byte before "
+                        "the fetch fails")
     p.add_argument("--budget", default="per_slot", choices=["per_slot", "cumulative"])
     p.add_argument("--viewport", default="lr", choices=["lr", "last", "oracle"])
     p.add_argument("--bandwidth-predictor", default="harmonic", choices=["harmonic", "last", "oracle"])

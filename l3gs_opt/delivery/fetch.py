@@ -36,8 +36,9 @@ slot) and against the index's SHA-256 (when a chunk completes).
 
 Differences from ``simulate`` (beyond real time)
 ------------------------------------------------
-* A chunk arrives in its file order, not re-sorted by predicted utility: a partly received
-  single-chunk unit shows the prefix of its rows in the bundle's order (``simulate`` would show
+* A chunk arrives in its file order, not re-sorted by predicted utility: the run's config gets
+  ``splat_order="stored"`` (``simulate --splat-order stored`` models exactly that), and a partly
+  received unit shows the prefix of its rows in the bundle's order (by default ``simulate`` shows
   the most useful ones). A partly received unit of several chunks shows ``bytes // bytes per
   splat`` rows, as the simulator counts them.
 * ``bytes_share`` (and so the predictor's history) is the bytes that arrived, not the trace's:
@@ -54,6 +55,7 @@ link model) before it continues the unit that was in flight.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import sys
 import threading
 import time
@@ -63,17 +65,26 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 
+import numpy as np
+
 from l3gs_opt.errors import L3gsError
+from l3gs_opt.scene.bundle import Bundle
 from l3gs_opt.scene.stream_index import INDEX_NAME, StreamChunk, StreamIndex, load_stream_chunk, read_stream, \
     stream_bundle
 from l3gs_opt.simulator.client import Client
 from l3gs_opt.simulator.config import SimConfig
 
-__all__ = ["FetchError", "unit_chunks", "HttpLink", "fetch", "FETCH_DIR", "REQUEST_TIMEOUT_S"]
+__all__ = ["FetchError", "unit_chunks", "HttpLink", "fetch", "FETCH_DIR", "REQUEST_TIMEOUT_S", "RETRY_S",
+           "CATALOGUES"]
 
 FETCH_DIR = "fetched"
 #: Seconds to wait for the index or a catalogue chunk, and for a connection to open.
 REQUEST_TIMEOUT_S = 60.0
+#: Seconds a transfer keeps retrying after its connection fails (a server restart, a dropped
+#: connection) without receiving a byte, before the fetch fails. Retries start 0.1 s apart and back
+#: off to 2 s; each resumes the chunk from the first byte not yet received (a Range request).
+RETRY_S = 30.0
+_RETRY_FIRST_S, _RETRY_MAX_S = 0.1, 2.0
 _READ_BYTES = 64 * 1024
 
 
@@ -165,9 +176,11 @@ class HttpLink:
         The server's base URL (``index.json`` and the data files are under it).
     client : str
         The session name sent as ``X-L3gs-Client`` (the server paces per name).
+    retry_s : float
+        See :data:`RETRY_S`.
     """
 
-    def __init__(self, url: str, *, client: str):
+    def __init__(self, url: str, *, client: str, retry_s: float = RETRY_S):
         import aiohttp
 
         self.url = url.rstrip("/")
@@ -179,7 +192,9 @@ class HttpLink:
         self.session = self._call(self._open())
         self.units: list[tuple[StreamChunk, ...]] = []
         self.store: Optional[_Store] = None
-        self.start_slot = 0
+        self.trace_slot = 0                    # the trace slot the session is in (sent to the server)
+        self.retry_s = float(retry_s)
+        self.retries = 0                       # transfers retried after a failed connection, this slot
         self.queue: deque = deque()            # [unit, bytes of it held], the head being received
         self.slot_bytes: OrderedDict = OrderedDict()
         self.fresh: set = set()                # units requested in this slot
@@ -219,7 +234,9 @@ class HttpLink:
         if rng is not None:
             headers["Range"] = f"bytes={rng[0]}-{rng[1] - 1}"
         if name == self.client:
-            headers["X-L3gs-Trace-Slot"] = str(self.start_slot)
+            # Read by the server on a session's first request only: after a server restart the new
+            # session's trace clock starts at the slot the client is in, not at the run's start.
+            headers["X-L3gs-Trace-Slot"] = str(self.trace_slot)
         return self.session.get(f"{self.url}/{path}", headers=headers)
 
     async def _read_all(self, path: str, rng: Optional[tuple[int, int]], name: str) -> bytes:
@@ -239,11 +256,11 @@ class HttpLink:
             raise FetchError("url", f"GET {self.url}/{path}: {type(exc).__name__}: {exc}") from None
 
     # -- the streaming session (all below runs on the loop's thread) -----------------------------
-    def begin(self, units: list[tuple[StreamChunk, ...]], store: _Store, *, start_slot: int,
+    def begin(self, units: list[tuple[StreamChunk, ...]], store: _Store, *, trace_slot: int,
               carried: Optional[tuple[int, int]] = None) -> None:
         """Prepare the session: units' chunks, where bytes go, the trace slot the session starts
         at, and the unit in flight (unit, bytes of it held) after a resume."""
-        self.units, self.store, self.start_slot = units, store, start_slot
+        self.units, self.store, self.trace_slot = units, store, trace_slot
 
         async def go():
             self._wake = asyncio.Event()
@@ -252,17 +269,19 @@ class HttpLink:
             self._task = asyncio.get_running_loop().create_task(self._work())
         self._call(go())
 
-    def submit(self, ids: Sequence[int]) -> None:
-        """Queue the slot's requests behind the unit in flight."""
+    def submit(self, ids: Sequence[int], *, trace_slot: int) -> None:
+        """Queue the slot's requests (the session now in trace slot ``trace_slot``) behind the unit in flight."""
         async def go():
+            self.trace_slot = trace_slot
             for k in ids:
                 self.queue.append([int(k), 0])
                 self.fresh.add(int(k))
             self._wake.set()
         self._call(go())
 
-    def cut(self) -> "OrderedDict[int, int]":
-        """End the slot: bytes that arrived per unit (in arrival order), dropping what did not start."""
+    def cut(self) -> "tuple[OrderedDict[int, int], int]":
+        """End the slot: bytes that arrived per unit (in arrival order), dropping what did not start,
+        and the number of connection retries in the slot."""
         async def go():
             if self.error is not None:
                 raise self.error
@@ -277,7 +296,8 @@ class HttpLink:
                 self._task = asyncio.get_running_loop().create_task(self._work())
             self.queue = deque([head] if keep else [])
             self.fresh = set()
-            return got
+            self.retries, retries = 0, self.retries
+            return got, retries
         return self._call(go())
 
     async def _work(self) -> None:
@@ -301,24 +321,120 @@ class HttpLink:
         for c in self.units[k]:
             lo = max(0, held - base)
             base += c.bytes
-            if lo >= c.bytes:
-                continue
-            async with await self._get(c.file, (c.start + lo, c.end), self.client) as resp:
-                want = f"bytes {c.start + lo}-{c.end - 1}/"
-                if resp.status != 206 or not resp.headers.get("Content-Range", "").startswith(want):
-                    raise FetchError("chunks", f"GET {c.file} {c.range_header}: answered {resp.status} "
-                                               f"{resp.headers.get('Content-Range')!r}, expected 206 {want}...",
-                                     c.index)
-                async for data in resp.content.iter_chunked(_READ_BYTES):
-                    if len(data) > c.bytes - lo:
-                        raise FetchError("chunks", f"{c.file}: more bytes than the range asked", c.index)
-                    self.store.append(c.index, data)
-                    lo += len(data)
-                    entry[1] += len(data)
-                    self.slot_bytes[k] = self.slot_bytes.get(k, 0) + len(data)
-                if lo != c.bytes:
-                    raise FetchError("chunks", f"{c.file}: the response ended after {lo} of {c.bytes} bytes",
-                                     c.index)
+            while lo < c.bytes:
+                lo = await self._retrying(c, lo, entry, k)
+
+    async def _retrying(self, c: StreamChunk, lo: int, entry: list, k: int) -> int:
+        """Receive chunk ``c`` from byte ``lo`` on; a failed connection is retried from the first
+        byte missing until :attr:`retry_s` pass without a byte. Returns the bytes of ``c`` held."""
+        wait, deadline = _RETRY_FIRST_S, time.monotonic() + self.retry_s
+        while True:
+            before = lo
+            try:
+                return await self._receive(c, lo, entry, k)
+            except FetchError:
+                raise
+            except (OSError, asyncio.TimeoutError, self._aiohttp.ClientError) as exc:
+                lo = len(self.store.data[c.index])
+                if lo > before:   # progress resets the clock: only a dead server runs it out
+                    wait, deadline = _RETRY_FIRST_S, time.monotonic() + self.retry_s
+                if time.monotonic() + wait > deadline:
+                    raise FetchError("chunks", f"GET {self.url}/{c.file}: no byte for {self.retry_s:g} s of retries "
+                                               f"({type(exc).__name__}: {exc})", c.index) from None
+                self.retries += 1
+                await asyncio.sleep(wait)
+                wait = min(2 * wait, _RETRY_MAX_S)
+
+    async def _receive(self, c: StreamChunk, lo: int, entry: list, k: int) -> int:
+        async with await self._get(c.file, (c.start + lo, c.end), self.client) as resp:
+            want = f"bytes {c.start + lo}-{c.end - 1}/"
+            if resp.status != 206 or not resp.headers.get("Content-Range", "").startswith(want):
+                raise FetchError("chunks", f"GET {c.file} {c.range_header}: answered {resp.status} "
+                                           f"{resp.headers.get('Content-Range')!r}, expected 206 {want}...",
+                                 c.index)
+            async for data in resp.content.iter_chunked(_READ_BYTES):
+                if len(data) > c.bytes - lo:
+                    raise FetchError("chunks", f"{c.file}: more bytes than the range asked", c.index)
+                self.store.append(c.index, data)
+                lo += len(data)
+                entry[1] += len(data)
+                self.slot_bytes[k] = self.slot_bytes.get(k, 0) + len(data)
+            if lo != c.bytes:
+                # A body cut short (the server went away): retried from here.
+                raise self._aiohttp.ClientPayloadError(f"{c.file}: the response ended after {lo} of {c.bytes} bytes")
+        return lo
+
+
+#: What the client knows before slot 0 (``fetch(catalogue=...)``).
+CATALOGUES = ("full", "tables")
+
+
+def _fetch_tables(link: "HttpLink") -> tuple[dict, int]:
+    """The server's utility tables by (utility, view), and the metadata bytes read (manifest + files)."""
+    from l3gs_opt.delivery.tables import TABLES_NAME, load_table, read_tables
+
+    try:
+        raw = link.get(TABLES_NAME)
+    except FetchError as exc:
+        raise FetchError("catalogue", f"'tables': the server has no {TABLES_NAME} ({exc}); export them with "
+                                      "'l3gs-opt bundle tables', or use catalogue 'full'") from None
+    tables, total = {}, len(raw)
+    for entry in read_tables(raw):
+        data = link.get(entry["file"])
+        total += len(data)
+        tables[(entry["utility"], entry["view"])] = load_table(entry, data)
+    return tables, total
+
+
+def _placeholders(dtype: np.dtype, n: int) -> np.ndarray:
+    """``n`` records that render as nothing: opacity and scales far below visible, unit rotation."""
+    rec = np.zeros(n, dtype)
+    names = dtype.names or ()
+    for f in names:
+        if f == "opacity" or f.startswith("scale_"):
+            rec[f] = _INVISIBLE
+    if "rot_0" in names:
+        rec["rot_0"] = 1.0
+    return rec
+
+
+#: Logit opacity and log scale of a placeholder: sigmoid(-30) ~ 1e-13, exp(-30) ~ 1e-13 scene units.
+_INVISIBLE = -30.0
+
+
+@dataclasses.dataclass(frozen=True)
+class _ReceivedBundle(Bundle):
+    """The bundle as far as it arrived: each chunk's received whole records, then placeholders.
+
+    The rows a client shows are the received records (the catalogue's file order), so the
+    placeholders are never shown; they keep the rows' numbering (object and level per row) fixed
+    from slot 0, when nothing has arrived.
+    """
+
+    index: Optional[StreamIndex] = None
+    store: Optional[_Store] = None
+
+    def chunk(self, i: int) -> np.ndarray:
+        c = self.index.chunks[i]
+        dtype = self.index.record(c.sh_form).dtype
+        rec = _placeholders(dtype, c.splats)
+        have = self.store.data[c.index]
+        n = min(c.splats, len(have) // dtype.itemsize)
+        if n:
+            rec[:n] = np.frombuffer(bytes(have[:n * dtype.itemsize]), dtype=dtype, count=n)
+        return rec
+
+
+def _refresh(sim, bundle: "_ReceivedBundle") -> None:
+    """Rebuild the client's scene from the bytes received (object and level of every row unchanged)."""
+    from l3gs_opt.simulator.catalog import _base_scene
+
+    base = _base_scene(bundle)
+    old = sim._base
+    if not (np.array_equal(base[1], old[1]) and np.array_equal(base[2], old[2])):
+        raise FetchError("chunks", "the received records moved rows between objects or levels")
+    sim._base, sim.scene = base, base[0]
+    sim._fingerprints.clear()
 
 
 class _FetchClient(Client):
@@ -333,12 +449,13 @@ class _FetchClient(Client):
         return record
 
 
-def _check_received(index: StreamIndex, catalogue: dict, store: _Store, units, ks, complete) -> None:
-    """The bytes received of ``ks`` equal the catalogue's; completed units pass the index's hashes."""
+def _check_received(index: StreamIndex, catalogue: Optional[dict], store: _Store, units, ks, complete) -> None:
+    """The bytes received of ``ks`` equal the catalogue's (when there is one); completed units pass
+    the index's hashes."""
     for k in ks:
         for c in units[k]:
             have = bytes(store.data[c.index])
-            if have != catalogue[c.index][:len(have)]:
+            if catalogue is not None and have != catalogue[c.index][:len(have)]:
                 raise FetchError("chunks", f"{c.file}: the {len(have)} bytes received differ from the catalogue's "
                                            "(the data changed on the server during the run?)", c.index)
             if complete[k]:
@@ -348,7 +465,7 @@ def _check_received(index: StreamIndex, catalogue: dict, store: _Store, units, k
 def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60, resume: bool = False,
           config: SimConfig = SimConfig(), solver: Optional[str] = None, mbps: Optional[float] = None,
           start: int = 0, trace_format: str = "auto", mapping=None, reference=None, client: Optional[str] = None,
-          progress: bool = False):
+          retry_s: float = RETRY_S, catalogue: str = "full", progress: bool = False):
     """Stream the bundle served at ``url`` for ``slots`` slots with ``method`` (see the module docstring).
 
     Parameters
@@ -374,6 +491,13 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
     client : str, optional
         Session name for the server's pacing (default: a random one). Use a new name for every run,
         a resumed one included: the server keeps a session's trace clock running from its first request.
+    retry_s : float
+        Seconds a transfer retries a failed connection without receiving a byte (:data:`RETRY_S`):
+        a server restarted within it is picked up where the chunk stopped, and the run goes on.
+    catalogue : {"full", "tables"}
+        What the client knows before slot 0 (see the module docstring): ``full``, the whole bundle
+        (any utility, as the simulator's client); ``tables``, only the index and the server's
+        utility tables (``l3gs-opt bundle tables``; layered bundles, ``utility_mode="table"``).
 
     Returns
     -------
@@ -391,6 +515,13 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
 
     if config.substeps != 1:
         raise FetchError("substeps", f"{config.substeps}: fetch plans once per slot (substeps 1)")
+    # Static chunk files arrive in their stored order (the records say so: simulate with the same
+    # config reproduces it).
+    config = dataclasses.replace(config, splat_order="stored")
+    if catalogue not in CATALOGUES:
+        raise FetchError("catalogue", f"{catalogue!r} is not one of {', '.join(CATALOGUES)}")
+    if catalogue == "tables":
+        config = dataclasses.replace(config, utility_mode="table")
     if resume and out_dir is None:
         raise FetchError("resume", "needs out_dir (the folder of the interrupted fetch)")
     if not isinstance(url, str) or not url.startswith(("http://", "https://")):
@@ -398,7 +529,9 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
     out = Path(out_dir) if out_dir is not None else None
     bandwidth, info = trace_bytes(trace, mbps=mbps, start=start, slots=slots, slot_s=config.slot_s,
                                   format=trace_format)
-    link = HttpLink(url, client=client or f"fetch-{uuid.uuid4().hex[:12]}")
+    if not (isinstance(retry_s, (int, float)) and 0 <= retry_s < float("inf")):
+        raise FetchError("retry_s", f"{retry_s!r}: expected seconds >= 0")
+    link = HttpLink(url, client=client or f"fetch-{uuid.uuid4().hex[:12]}", retry_s=retry_s)
     try:
         raw = link.get(INDEX_NAME)
         if out is None:
@@ -417,22 +550,41 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
         tmp.write_bytes(raw)
         tmp.replace(index_path)
         index = read_stream(index_path, check_files=False)
-        catalogue: dict[int, bytes] = {}
+        fetched: dict[int, bytes] = {}
 
         def catalogue_fetch(c: StreamChunk) -> bytes:
-            if c.index not in catalogue:
-                catalogue[c.index] = link.get(c.file, (c.start, c.end)) if c.bytes else b""
-            return catalogue[c.index]
+            if c.index not in fetched:
+                fetched[c.index] = link.get(c.file, (c.start, c.end)) if c.bytes else b""
+            return fetched[c.index]
 
-        bundle = stream_bundle(index, fetch=catalogue_fetch)
-        info = {**info, "url": url, "client": link.client}
-        sim = Simulation(bundle, poses, bandwidth, config=config, reference=reference, mapping=mapping, info=info)
+        store = _Store(None if out is None else out / FETCH_DIR, len(index.chunks))
+        info = {**info, "url": url, "client": link.client, "catalogue": catalogue}
+        tables = None
+        if catalogue == "full":
+            bundle = stream_bundle(index, fetch=catalogue_fetch)
+        else:
+            if index.representation != "layered":
+                raise FetchError("catalogue", f"'tables' needs a layered bundle (placeholder rows stand for splats not "
+                                              f"yet received), not {index.variant!r}; use catalogue 'full'")
+            tables, metadata_bytes = _fetch_tables(link)
+            info["metadata_bytes"] = metadata_bytes
+            bundle = _ReceivedBundle(path=index.path, manifest=index.bundle_manifest(), index=index, store=store)
+            if reference is None:
+                # The score's reference is the evaluator's, not the client's knowledge: read apart.
+                full = Simulation(stream_bundle(index, fetch=catalogue_fetch), poses, bandwidth, config=config,
+                                  mapping=mapping)
+                reference = full.reference_scene()
+        sim = Simulation(bundle, poses, bandwidth, config=config, reference=reference, mapping=mapping, info=info,
+                         utility_tables=tables)
         spec = sim.spec(method, solver)
+        if tables is not None and (spec.utility, spec.view) not in tables:
+            have = ", ".join(f"{u}/{v}" for u, v in sorted(tables)) or "none"
+            raise FetchError("utility", f"{spec.utility!r} for the {spec.view!r} view: the server's tables are "
+                                        f"{have} (l3gs-opt bundle tables --utility NAME --views VIEW)")
         cl = _FetchClient(sim, spec, out_dir=out, resume=resume)
         cl.fetch_info = {}
         cat = cl.cat
         units = unit_chunks(index, cat)
-        store = _Store(None if out is None else out / FETCH_DIR, len(index.chunks))
         carried = None
         if cl.first_slot == 0:
             store.reset()
@@ -447,7 +599,9 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             if cl.link.in_flight:
                 tr = cl.link.in_flight[0]
                 carried = (int(tr.key), int(tr.delivered))
-        link.begin(units, store, start_slot=cl.first_slot, carried=carried)
+        if tables is not None:
+            _refresh(sim, bundle)
+        link.begin(units, store, trace_slot=start + cl.first_slot, carried=carried)
         t_zero = None
         for t in range(cl.first_slot, sim.T):
             cl.fetch_info = {}
@@ -457,22 +611,23 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             if t_zero is None:   # the slots' wall clock starts when the first requests go out
                 t_zero = now
             slot_start = t_zero + (t - cl.first_slot) * config.slot_s
-            link.submit(ids)
+            link.submit(ids, trace_slot=start + t)
             late = max(0.0, now - slot_start)
             wait = slot_start + config.slot_s - time.monotonic()
             if wait > 0:
                 time.sleep(wait)
-            got = link.cut()
+            got, retries = link.cut()
             measured = int(sum(got.values()))
             cl.deliver(ids, measured)
             d = cl.acc["delivery"]
             if list(d.delivered.items()) != [(k, b) for k, b in got.items() if b > 0]:
                 raise FetchError("slots", f"the link model's deliveries {dict(d.delivered)} differ from the bytes "
                                           f"that arrived {dict(got)}", t)
-            for k in d.started:   # the bytes came in the file's order, not re-sorted by utility
-                cl.order[k] = cat.rows[k]
-            _check_received(index, catalogue, store, units, list(d.delivered), cl.complete)
-            cl.fetch_info = {"bytes_received": measured, "late_s": round(late, 6)}
+            _check_received(index, fetched if catalogue == "full" else None, store, units, list(d.delivered),
+                            cl.complete)
+            if tables is not None and d.delivered:
+                _refresh(sim, bundle)
+            cl.fetch_info = {"bytes_received": measured, "late_s": round(late, 6), "retries": retries}
             cl.end_slot()
             if progress:
                 print(f"slot {t}: {measured} bytes, SSIM {cl.records[-1]['ssim']:.4f}", file=sys.stderr, flush=True)

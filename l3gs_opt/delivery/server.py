@@ -1,7 +1,9 @@
 """An HTTP server for a stream export (:mod:`l3gs_opt.scene.stream_index`): ``index.json`` and its data files.
 
 ``GET`` and ``HEAD`` of ``/index.json`` and of each data file the index names
-(``filenames``: ``/chunks.bin``, or ``/chunks/o0_l1_full.bin`` ...), nothing else: any other path
+(``filenames``: ``/chunks.bin``, or ``/chunks/o0_l1_full.bin`` ...), and, when the export has
+utility tables (:mod:`l3gs_opt.delivery.tables`), of ``/tables.json`` and the table files it lists
+(metadata: never paced, like the index), nothing else: any other path
 (``..``, its encoded forms, absolute paths, links or files not named by the index) is 404. The
 allow-list is read from the index when the server starts, and each file is opened by its path
 under the folder resolved then (after links), so a link planted later cannot lead out (restart the
@@ -57,6 +59,7 @@ from typing import Optional
 from aiohttp import web
 
 from l3gs_opt.delivery.shaping import TraceShaper, trace_shaper
+from l3gs_opt.delivery.tables import TABLES_NAME, read_tables
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.scene.stream_index import INDEX_NAME, read_stream
 
@@ -159,6 +162,17 @@ class _Files:
         self.paths = {INDEX_NAME: root / INDEX_NAME}
         for name in index.filenames:
             self.paths[name] = (root / name).resolve()
+        #: Files served unpaced: the index and the utility tables.
+        self.metadata = {INDEX_NAME}
+        if (root / TABLES_NAME).is_file():
+            self.paths[TABLES_NAME] = root / TABLES_NAME
+            self.metadata.add(TABLES_NAME)
+            for i, entry in enumerate(read_tables(root)):
+                path = (root / entry["file"]).resolve()
+                if not path.is_relative_to(root):
+                    raise ServerError("tables", f"[{i}] {entry['file']} resolves outside {root}")
+                self.paths[entry["file"]] = path
+                self.metadata.add(entry["file"])
         self._etags: dict[tuple, str] = {}
 
     def etag(self, key: tuple) -> Optional[str]:
@@ -253,13 +267,13 @@ async def _handle(request: web.Request) -> web.StreamResponse:
         await resp.prepare(request)
         if request.method == "HEAD":
             return resp
-        bucket = None if name == INDEX_NAME else \
+        bucket = None if name in files.metadata else \
             _bucket(request, request.app[_SHAPER], request.app[_ANONYMOUS])
-        piece = PIECE_BYTES if bucket is None else min(PIECE_BYTES, bucket.shaper.burst_bytes)
         fh.seek(start)
         left = end - start
         try:
             while left > 0:
+                piece = PIECE_BYTES if bucket is None else min(PIECE_BYTES, bucket.piece_bytes())
                 # A blocking read on the loop: pieces are at most PIECE_BYTES of a local, usually cached file.
                 data = fh.read(min(piece, left))
                 if not data:

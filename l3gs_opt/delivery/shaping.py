@@ -11,7 +11,13 @@ Why a small burst: a client counts the bytes that arrive in each slot; whatever 
 at a slot boundary is sent at once and lands in the slot it was earned in, so the error per slot
 is at most one burst. The default burst, 10 ms of the trace's fastest slot (1 % of a 1 s slot at
 that rate) but at least 2 KiB, keeps that error small and the writes at most 100 per second (or
-rate / 2 KiB below 200 kB/s); the pieces a server writes are never larger.
+rate / 2 KiB below 200 kB/s).
+
+Why pieces sized to the current slot: a piece is reserved whole and sent when the trace has
+earned it, so the bytes sent by time t run up to one piece ahead of the trace, and a slot's count
+is off by up to a piece. A burst-sized piece in a slot five times slower than the fastest is 5 %
+of that slot's bytes; :meth:`SessionBucket.piece_bytes` (10 ms of the current slot's rate, between
+:data:`MIN_PIECE_BYTES` and the burst) keeps it near 1 % at any rate, at up to 100 writes a second.
 
 Nothing here touches host networking: pacing is done by the server delaying its writes.
 
@@ -39,11 +45,14 @@ import numpy as np
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.traces.bandwidth import MAX_SLOT_BYTES
 
-__all__ = ["ShapingError", "TraceShaper", "SessionBucket", "MIN_BURST_BYTES", "BURST_S", "MAX_SESSIONS",
+__all__ = ["ShapingError", "TraceShaper", "SessionBucket", "MIN_BURST_BYTES", "MIN_PIECE_BYTES", "BURST_S",
+           "MAX_SESSIONS",
            "trace_shaper"]
 
 #: Smallest burst (bytes): two Ethernet frames' payload, so slow traces do not pay a write per few bytes.
 MIN_BURST_BYTES = 2048
+#: Smallest piece a paced response is written in (bytes): below 25.6 kB/s fewer than 100 writes a second.
+MIN_PIECE_BYTES = 256
 #: Default burst as time at the trace's fastest rate (seconds): 1 % of a 1 s slot.
 BURST_S = 0.01
 #: Sessions remembered at once; the least recently used is forgotten first (it restarts the trace).
@@ -169,6 +178,15 @@ class SessionBucket:
     def _allowed(self, s: float) -> float:
         """Bytes the trace allows in the session's first ``s`` seconds."""
         return self.shaper.cumulative_bytes(self.offset_s + s) - self._offset_bytes
+
+    def piece_bytes(self) -> int:
+        """Bytes to write at once now: :data:`BURST_S` of the current slot's rate, at least
+        :data:`MIN_PIECE_BYTES`, at most the burst (see the module docstring)."""
+        sh = self.shaper
+        T = len(sh.bytes_per_slot)
+        slot = int((self.offset_s + max(0.0, sh.clock() - self.start)) / sh.slot_s) % T
+        rate = sh.bytes_per_slot[slot] / sh.slot_s
+        return int(min(sh.burst_bytes, max(MIN_PIECE_BYTES, BURST_S * rate)))
 
     def reserve(self, n: int) -> float:
         """Take ``n`` bytes now; returns the seconds to wait before sending them (0: at once).

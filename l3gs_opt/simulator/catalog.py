@@ -49,6 +49,10 @@ class Catalog:
     shape : (J, L)
     forms : tuple of str
         The unit forms per (object, level): ``("full",)``, or ``("compact", "sh_upgrade")``.
+    file_rows : list of int arrays, K of them, or None
+        Rows of each unit in the order its chunks' records sit in the files (chunks in the
+        bundle's order, each chunk's records in order): what a client fetching the unit's chunks
+        one after the other by HTTP Range receives (``SimConfig.splat_order="stored"``). None: ``rows``.
     """
 
     view: str
@@ -60,6 +64,11 @@ class Catalog:
     bytes: np.ndarray
     shape: tuple[int, int]
     forms: tuple[str, ...] = ("full",)
+    file_rows: list | None = None
+
+    def stored_rows(self, k: int) -> np.ndarray:
+        """Rows of unit ``k`` in file order (see ``file_rows``)."""
+        return self.rows[k] if self.file_rows is None else self.file_rows[k]
 
     @property
     def units(self) -> int:
@@ -215,9 +224,10 @@ def build_catalog(bundle, view: str = "object", *, base=None) -> Catalog:
         else [_bytes_per_splat(chunks, stored)]
     F = len(forms)
     K = J * L * F
-    rows, splats, bps = [], np.zeros(K, np.int64), np.zeros(K, np.int64)
+    rows, file_rows, splats, bps = [], [], np.zeros(K, np.int64), np.zeros(K, np.int64)
     for c in range(J * L):
         r = np.flatnonzero(cell == c)
+        in_files = r   # the base scene is the chunks' records concatenated in the bundle's order
         if view == "scene" and r.size:
             # Interleave the objects of the level in proportion (rank within object / object size).
             key = np.zeros(r.size)
@@ -228,6 +238,7 @@ def build_catalog(bundle, view: str = "object", *, base=None) -> Catalog:
         for f in range(F):
             k = c * F + f
             rows.append(r)
+            file_rows.append(in_files)
             splats[k] = r.size
             if r.size:
                 members = {per_form[f].get((int(o), int(level[r[0]])), None) for o in np.unique(obj[r])}
@@ -236,4 +247,5 @@ def build_catalog(bundle, view: str = "object", *, base=None) -> Catalog:
                                                     f"{sorted(members, key=str)} and cannot be merged into one stream")
                 bps[k] = members.pop()
     return Catalog(view=view, representation=m["representation"], rows=rows, unit_of_row=cell,
-                   splats=splats, bytes_per_splat=bps, bytes=splats * bps, shape=(J, L), forms=forms)
+                   splats=splats, bytes_per_splat=bps, bytes=splats * bps, shape=(J, L), forms=forms,
+                   file_rows=file_rows)

@@ -192,7 +192,7 @@ class Client:
         t1 = time.perf_counter()
         for k in delivery.started:
             self.order[k] = self.inputs.splat_order(k) if self.spec.order == "utility" \
-                else cat.rows[k]
+                else cat.stored_rows(k) if self.spec.order == "file" else cat.rows[k]
         acc["order_s"] += time.perf_counter() - t1
         for k, b in delivery.delivered.items():
             self.got[k] += b

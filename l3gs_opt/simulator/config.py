@@ -20,6 +20,8 @@ SH_UPGRADE_UTILITIES = ("residual", "bands")
 _VIEWPORT = ("lr", "last", "oracle")
 _BANDWIDTH = ("harmonic", "last", "oracle")
 _UTILITY_MODES = ("exact", "table")
+#: How the splats of a unit are ordered on the wire (``SimConfig.splat_order``).
+SPLAT_ORDERS = ("method", "stored")
 
 
 class SimulationError(L3gsError, ValueError):
@@ -60,6 +62,11 @@ class SimConfig:
         utilities only).
     order_utility : str or None
         The utility that orders the splats inside a unit as it streams (None: ``utility``).
+    splat_order : {"method", "stored"}
+        ``method``: as the method says (the utility-scheduled methods stream a unit's splats in
+        descending predicted utility: a server that reorders them per request); ``stored``: every
+        unit in its chunks' file order (chunk after chunk, records in order), as a client fetching
+        static chunk files by HTTP Range receives them (what ``l3gs-opt fetch`` sees).
     pose_start_s : float
         Pose-log time of slot 0's start, seconds.
     time_limit_s : float or None
@@ -105,6 +112,7 @@ class SimConfig:
     utility: str = "eq1"
     utility_mode: str = "exact"
     order_utility: str | None = None
+    splat_order: str = "method"
     pose_start_s: float = 0.0
     time_limit_s: float | None = None
     horizon: int | None = None
@@ -129,7 +137,7 @@ class SimConfig:
         if self.width < 11 or self.height < 11:
             raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),
-                              ("utility_mode", _UTILITY_MODES)):
+                              ("utility_mode", _UTILITY_MODES), ("splat_order", SPLAT_ORDERS)):
             if getattr(self, name) not in allowed:
                 raise SimulationError(name, f"{getattr(self, name)!r} is not one of {', '.join(allowed)}")
         from l3gs_opt.pipeline.utilities import UtilityNameError, get_utility, utility_names

@@ -27,8 +27,8 @@ class MethodSpec:
 
     ``view``: ``object``, ``scene``, ``distill`` or ``hierarchy`` units (see
     :mod:`l3gs_opt.simulator.catalog`; the last two give the scheduler an :class:`ItemSlotView`);
-    ``order``: ``utility`` (a chunk's splats in descending predicted utility) or ``bundle``
-    (stored order); ``preload``: start with the largest model; ``utility`` / ``order_utility``:
+    ``order``: ``utility`` (a chunk's splats in descending predicted utility), ``bundle``
+    (the catalogue's order) or ``file`` (the chunks' file order, ``SimConfig.splat_order="stored"``); ``preload``: start with the largest model; ``utility`` / ``order_utility``:
     the splat utilities that value units and order splats (None: the simulation's config decides,
     see :meth:`~l3gs_opt.simulator.simulation.Simulation.spec`).
     """

@@ -162,9 +162,10 @@ class Simulation:
         The full teacher scene the renders are scored against; None: the bundle's largest model.
     mapping : PoseMapping, optional
         Head pose -> camera (default: :data:`l3gs_opt.pipeline.scene_instance.Z_UP_MAPPING`, z-up scenes).
-    utility_tables : mapping view -> UtilityTable, optional
-        Eq. 1 tables for ``utility_mode="table"``, labelled like the view's (object, level) cells;
-        a missing one (or one of another utility) is built on a 3 x 3 grid over the viewer's
+    utility_tables : mapping view or (utility, view) -> UtilityTable, optional
+        Tables for ``utility_mode="table"``, labelled like the view's (object, level) cells: under a
+        view, Eq. 1's; under (utility, view), that utility's (e.g. a server's tables,
+        :mod:`l3gs_opt.delivery.tables`). A missing one is built on a 3 x 3 grid over the viewer's
         positions (12 yaws x 3 pitches).
     info : mapping, optional
         Free-form provenance copied into every summary (e.g. the trace window).
@@ -428,7 +429,8 @@ class Simulation:
         utility = utility or spec.utility or self.config.utility
         order = order_utility or spec.order_utility or self.config.order_utility or utility
         self.valuation(utility, order)   # checks both names now
-        return dataclasses.replace(spec, utility=utility, order_utility=order)
+        stream = "file" if self.config.splat_order == "stored" else spec.order
+        return dataclasses.replace(spec, utility=utility, order_utility=order, order=stream)
 
     def run_id(self, spec: MethodSpec, client: int | None = None, clients: int = 1) -> str:
         """Digest of everything that decides a run of ``spec`` (see :mod:`l3gs_opt.simulator.records`)."""

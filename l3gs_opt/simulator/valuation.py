@@ -103,6 +103,9 @@ class Valuation:
         name = (self.utility.name, "object" if cat.view in ("distill", "hierarchy") else cat.view)
         if name in sim.tables:
             return sim.tables[name]
+        if name in sim.given_tables:    # given for this utility and view
+            sim.tables[name] = sim.given_tables[name]
+            return sim.tables[name]
         if self.utility.name == "eq1" and name[1] in sim.given_tables:
             sim.tables[name] = sim.given_tables[name[1]]
             return sim.tables[name]
