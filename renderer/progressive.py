@@ -112,7 +112,9 @@ def _cameras(views: Sequence[View]) -> list:
 def prune_to_target_size(scene, d: int, views: Sequence[View], *, r: float = DEFAULT_PRUNE_RATIO,
                          recovery_config: TrainConfig = TrainConfig(iterations=300),
                          finetune_config: TrainConfig = TrainConfig(iterations=300),
-                         progress: Optional[Callable[[int, float], None]] = None) -> PruneResult:
+                         progress: Optional[Callable[[int, float], None]] = None,
+                         start: Optional[tuple] = None,
+                         on_round: Optional[Callable[[object, list], None]] = None) -> PruneResult:
     """Prune ``scene`` to exactly ``d`` splats by significance, recovering quality as it goes.
 
     Parameters
@@ -128,6 +130,12 @@ def prune_to_target_size(scene, d: int, views: Sequence[View], *, r: float = DEF
         Schedules of the Recovery and final Finetune runs.
     progress : callable(iteration, loss), optional, keyword-only
         Passed to every training run.
+    start : (SplatScene, list of dict), optional, keyword-only
+        Resume: the scene after some rounds of an earlier run with the same inputs, and those
+        rounds' records (what ``on_round`` was given); the rounds go on from there.
+    on_round : callable(SplatScene, list of dict), optional, keyword-only
+        Called after every round with the scene so far and the rounds' records (a checkpoint:
+        one round of a million-splat scene can take most of an hour on two cores).
 
     Returns
     -------
@@ -145,6 +153,10 @@ def prune_to_target_size(scene, d: int, views: Sequence[View], *, r: float = DEF
     cams = _cameras(views)
     rounds: list[dict] = []
     cur = scene
+    if start is not None:
+        cur, rounds = start[0], [dict(r) for r in start[1]]
+        if not d <= cur.num_splats <= n0:
+            raise SizeError("start", f"{cur.num_splats} splats: a resumed round holds between {d} and {n0}")
     with threads(TRAIN_THREADS):
         while cur.num_splats > d:
             n = cur.num_splats
@@ -157,6 +169,8 @@ def prune_to_target_size(scene, d: int, views: Sequence[View], *, r: float = DEF
             else:
                 cur = finetune(cur.subset(order[:d]), views, config=finetune_config, progress=progress).scene
                 rounds.append({"splats_before": n, "pruned": n - d, "action": "finetune", "splats_after": d})
+            if on_round is not None:
+                on_round(cur, rounds)
         sig = global_significance(cur, cams)
     order = significance_order(sig)
     return PruneResult(scene=cur.subset(order), significance=sig[order], rounds=rounds)

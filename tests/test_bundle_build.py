@@ -84,6 +84,39 @@ def test_resume_skips_finished_stages(setup):
         build_bundle(tmp / "t.ply", cams, [8, 20], "layered", out, schedule=TINY, show_progress=False, resume=True)
 
 
+def test_a_prune_stage_resumes_between_rounds(setup, monkeypatch):
+    """Prune2TargetSize 40 -> 8 runs rounds (recovery, recovery, finetune); interrupted after its
+    first round's checkpoint, the build resumes from that round and ends bit-equal to an
+    uninterrupted one (each round's training is seeded by the schedule)."""
+    from l3gs_opt.pipeline import build as build_module
+
+    tmp, scene, cams = setup
+    whole = build_bundle(tmp / "t.ply", cams, [8], "separate", tmp / "r-whole", schedule=TINY, show_progress=False)
+    real = build_module._Stages.save_partial
+    calls = []
+
+    def save_then_stop(self, name, sc, rounds, seconds):
+        real(self, name, sc, rounds, seconds)
+        calls.append(len(rounds))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(build_module._Stages, "save_partial", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        build_bundle(tmp / "t.ply", cams, [8], "separate", tmp / "r-cut", schedule=TINY, show_progress=False)
+    monkeypatch.setattr(build_module._Stages, "save_partial", real)
+    state = json.loads((tmp / "r-cut" / ".build" / "state.json").read_text())
+    assert calls == [1] and len(state["partial"]["version_0"]["rounds"]) == 1 and not state["done"]
+    lines = []
+    res = build_bundle(tmp / "t.ply", cams, [8], "separate", tmp / "r-cut", schedule=TINY, show_progress=False,
+                       resume=True, log=lines.append)
+    assert any(s.startswith("version_0: resumed after round 1") for s in lines)
+    a, b = read_bundle(tmp / "r-whole").scene(0), read_bundle(tmp / "r-cut").scene(0)
+    assert a.means.tobytes() == b.means.tobytes() and a.sh.tobytes() == b.sh.tobytes()
+    assert res.stage_seconds["version_0"] > 0 and whole.stage_seconds["version_0"] > 0
+    state = json.loads((tmp / "r-cut" / ".build" / "state.json").read_text())
+    assert state["partial"] == {} and not (tmp / "r-cut" / ".build" / "version_0.partial.ply").exists()
+
+
 def _cli(*argv):
     parser = argparse.ArgumentParser()
     register(parser.add_subparsers(dest="command", required=True))

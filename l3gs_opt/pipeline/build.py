@@ -201,6 +201,8 @@ class _Stages:
         self.state_path = self.dir / "state.json"
         self.key = key
         self.done: dict = {}
+        #: Stages checkpointed between rounds (Prune2TargetSize), by name.
+        self.partial: dict = {}
         if resume and self.state_path.is_file():
             state = read_json(self.state_path, lambda f, m: BuildError(f"--resume: {m}"))
             if not isinstance(state, dict) or not isinstance(state.get("done"), dict):
@@ -211,6 +213,8 @@ class _Stages:
                 raise BuildError(f"--resume: the checkpoint in {self.dir} was made with a different "
                                  f"{', '.join(diff) or 'state version'}; drop --resume to start over")
             self.done = state["done"]
+            partial = state.get("partial", {})
+            self.partial = partial if isinstance(partial, dict) else {}
         elif self.dir.is_dir():
             for f in self.dir.iterdir():  # a fresh build must not pick up stale checkpoints
                 f.unlink()
@@ -224,8 +228,28 @@ class _Stages:
     def save(self, name: str, scene: SplatScene, seconds: float) -> None:
         write_ply(scene, self.dir / f"{name}.ply")
         self.done[name] = {"file": f"{name}.ply", "seconds": seconds}
+        self.partial.pop(name, None)
+        self._write_state()
+        (self.dir / f"{name}.partial.ply").unlink(missing_ok=True)
+
+    def load_partial(self, name: str) -> Optional[tuple[SplatScene, list, float]]:
+        """A stage's last round (scene, rounds' records, seconds spent), or None."""
+        got = self.partial.get(name)
+        if got is None:
+            return None
+        return read_ply(self.dir / got["file"]), got["rounds"], got["seconds"]
+
+    def save_partial(self, name: str, scene: SplatScene, rounds: list, seconds: float) -> None:
+        """Checkpoint a stage between rounds (written first, then named in the state, atomically)."""
+        tmp = self.dir / f"{name}.partial.tmp.ply"
+        write_ply(scene, tmp)
+        os.replace(tmp, self.dir / f"{name}.partial.ply")
+        self.partial[name] = {"file": f"{name}.partial.ply", "rounds": rounds, "seconds": seconds}
+        self._write_state()
+
+    def _write_state(self) -> None:
         tmp = self.state_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"key": self.key, "done": self.done}, indent=1))
+        tmp.write_text(json.dumps({"key": self.key, "done": self.done, "partial": self.partial}, indent=1))
         os.replace(tmp, self.state_path)  # atomic: an interrupted write never leaves a broken state
 
 
@@ -312,7 +336,9 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
             seconds["teacher_renders"] = time.perf_counter() - t0
         return views
 
-    def run(name: str, fn, total: Optional[int] = None) -> SplatScene:
+    def run(name: str, fn, total: Optional[int] = None, *, rounds: bool = False) -> SplatScene:
+        """Stage ``name``: ``fn(views, tick)`` (``rounds``: ``fn(views, tick, start, on_round)``, a
+        stage checkpointed between its rounds), or its checkpoint."""
         got = stages.load(name)
         if got is not None:
             seconds[name] = stages.done[name]["seconds"]
@@ -320,6 +346,19 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
             return got
         vws = get_views()
         t0 = time.perf_counter()
+        before = 0.0
+        if rounds:
+            part = stages.load_partial(name)
+            start = None
+            if part is not None:
+                start, before = (part[0], part[1]), part[2]
+                say(f"{name}: resumed after round {len(part[1])} ({part[0].num_splats} splats)")
+
+            def on_round(scene, recs):
+                stages.save_partial(name, scene, recs, before + time.perf_counter() - t0)
+
+            inner = fn
+            fn = lambda v, tk: inner(v, tk, start, on_round)  # noqa: E731
         bar = None
         if show_progress:
             from tqdm import tqdm
@@ -340,7 +379,7 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
         finally:
             if bar is not None:
                 bar.close()
-        dt = time.perf_counter() - t0
+        dt = before + time.perf_counter() - t0
         seconds[name] = dt
         stages.save(name, result, dt)
         say(f"{name}: {result.num_splats} splats, {dt:.1f} s")
@@ -349,18 +388,19 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
     rc, fc, lc = (schedule.train_config(k) for k in ("recovery", "finetune", "layer"))
 
     def prune(src, d):
-        return lambda vws, tick: prune_to_target_size(src, d, vws, r=schedule.prune_ratio, recovery_config=rc,
-                                                      finetune_config=fc, progress=tick).scene
+        return lambda vws, tick, start, on_round: prune_to_target_size(
+            src, d, vws, r=schedule.prune_ratio, recovery_config=rc, finetune_config=fc, progress=tick,
+            start=start, on_round=on_round).scene
 
     compact = parents = None
     if variant in ("layered", "distill"):
-        srt = run(f"prune_{sizes[-1]}", prune(scene, sizes[-1]))
+        srt = run(f"prune_{sizes[-1]}", prune(scene, sizes[-1]), rounds=True)
         cur, prev = None, 0
         if schedule.layered_base == "pruned" and len(sizes) > 1:
             # The separate variant's chain (its stage names: the same stages, the same scenes).
             src = srt
             for i in range(len(sizes) - 2, -1, -1):
-                src = run(f"version_{i}", prune(src, sizes[i]))
+                src = run(f"version_{i}", prune(src, sizes[i]), rounds=True)
             cur = dataclasses.replace(src, layers=np.zeros(src.num_splats, np.int32))
             prev = sizes[0]
         for i, d in enumerate(sizes):
@@ -384,7 +424,7 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
         versions: list = [None] * len(sizes)
         src = scene
         for i in range(len(sizes) - 1, -1, -1):
-            versions[i] = src = run(f"version_{i}", prune(src, sizes[i]))
+            versions[i] = src = run(f"version_{i}", prune(src, sizes[i]), rounds=True)
         levels = versions
         if variant == "hierarchy":
             parents = [None] + [hierarchy_parents(levels[i - 1], levels[i]) for i in range(1, len(levels))]
