@@ -120,28 +120,42 @@ def _busy(rec: dict) -> bool:
 
 def compare_run(export: Path, teacher, mbps: float, log: Path, method: str, window: int, slots: int,
                 work: Path, server: Server) -> dict:
+    """One fetch and its simulations. ``method``: ``NAME[:UTILITY][@tables]`` (``@tables``: the client
+    knows only the index and the server's utility tables)."""
     from l3gs_opt.delivery.fetch import fetch
+    from l3gs_opt.delivery.tables import load_table, read_tables
     from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
     from l3gs_opt.scene.stream_index import read_stream, stream_bundle
-    from l3gs_opt.simulator.simulation import SimConfig, simulate, trace_bytes
+    from l3gs_opt.simulator.simulation import SimConfig, Simulation, trace_bytes
 
-    name, _, utility = method.partition(":")
+    spec, _, catalogue = method.partition("@")
+    catalogue = catalogue or "full"
+    name, _, utility = spec.partition(":")
     config = SimConfig(width=160, height=120, utility=utility or "eq1")
-    out = work / f"fetch-{name}-{utility or 'eq1'}-w{window}"
+    out = work / f"fetch-{name}-{utility or 'eq1'}-{catalogue}-w{window}"
     cpu0, t0 = server.cpu_s(), time.monotonic()
     got = fetch(server.url, TRACE, log, name, out, slots=slots, start=window, mbps=mbps, config=config,
-                mapping=Z_UP_MAPPING, reference=teacher)
+                mapping=Z_UP_MAPPING, reference=teacher, catalogue=catalogue)
     wall, cpu = time.monotonic() - t0, server.cpu_s() - cpu0
     recs = [json.loads(line) for line in (out / "slots.jsonl").read_text().splitlines()]
     trace, _ = trace_bytes(TRACE, mbps=mbps, start=window, slots=slots)
     bundle = stream_bundle(read_stream(export))
     measured = [r["fetch"]["bytes_received"] for r in recs]
     stored = dataclasses.replace(config, splat_order="stored")
-    sims = {"sim_trace": (trace, stored), "sim_measured": (measured, stored), "sim_trace_utility_order": (trace, config)}
+    if catalogue == "tables":
+        tables = {(e["utility"], e["view"]): load_table(e, (export / e["file"]).read_bytes())
+                  for e in read_tables(export)}
+        tab = dataclasses.replace(stored, utility_mode="table")
+        sims = {"sim_trace": (trace, tab, tables), "sim_measured": (measured, tab, tables),
+                "sim_trace_exact_utilities": (trace, stored, None)}
+    else:
+        sims = {"sim_trace": (trace, stored, None), "sim_measured": (measured, stored, None),
+                "sim_trace_utility_order": (trace, config, None)}
     f_ssim = np.array(got.summary["ssim_per_s"])
     per_s, diff, mean = {}, {}, {"fetch": float(f_ssim.mean())}
-    for key, (bw, cfg) in sims.items():
-        s = simulate(bundle, log, bw, name, config=cfg, reference=teacher, mapping=Z_UP_MAPPING).summary
+    for key, (bw, cfg, tabs) in sims.items():
+        sim = Simulation(bundle, log, bw, config=cfg, reference=teacher, mapping=Z_UP_MAPPING, utility_tables=tabs)
+        s = sim.run(name).summary
         per_s[key] = s["ssim_per_s"]
         diff[key] = float(np.max(np.abs(np.array(s["ssim_per_s"]) - f_ssim)))
         mean[key] = s["ssim_mean"]
@@ -149,7 +163,8 @@ def compare_run(export: Path, teacher, mbps: float, log: Path, method: str, wind
     ratio = [measured[t] / trace[t] for t in busy if trace[t] > 0]
     catalogue = sum(c.bytes for c in read_stream(export).chunks)
     return {
-        "method": method, "window_start_s": window, "slots": slots, "wall_s": wall,
+        "method": method, "catalogue": catalogue, "window_start_s": window, "slots": slots, "wall_s": wall,
+        "metadata_bytes": got.summary.get("metadata_bytes"),
         "trace_bytes": [int(b) for b in trace], "fetch_bytes": measured,
         "busy_slots": busy, "bytes_ratio_busy": ratio,
         "max_bytes_error_busy": max((abs(r - 1) for r in ratio), default=None),
@@ -244,22 +259,38 @@ def write_report(data: dict, out: Path) -> None:
         else:
             lines.append(f"| {r['method']} | {r['window_start_s']} s | 0 | - | - | - | - | {r['retries']} |")
     lines += ["", "## SSIM: simulate against fetch", "",
-              "`sim(trace)`: the simulator on the trace's bytes, each chunk's splats in the stored order (as fetch "
-              "receives static files: `--splat-order stored`); `sim(measured)`: the same on the bytes fetch measured; "
-              "`sim(trace, utility order)`: the simulator's default, each chunk's splats re-sorted by predicted "
-              "utility (a server that could reorder per request).", "",
-              "| method | window | mean SSIM fetch | sim(trace) | sim(measured) | sim(trace, utility order) | "
-              "max per-second diff: sim(trace) | sim(measured) | sim(trace, utility order) |",
+              "`sim(trace)`: the simulator on the trace's bytes with what the fetch client knew -- each chunk's "
+              "splats in the stored order (static files fetched by Range: `--splat-order stored`), and for "
+              "`@tables` runs the server's utility tables (`utility_mode` table); `sim(measured)`: the same on the "
+              "bytes fetch measured (it differs from fetch only in slot 0's bandwidth guess, which is the trace's "
+              "for fetch). Last column, for full-catalogue runs: the simulator's default (each chunk's splats "
+              "re-sorted by predicted utility, a server that could reorder per request); for `@tables` runs: the "
+              "simulator valuing by exact utilities from every splat (what knowing the whole bundle is worth).", "",
+              "| method | window | mean SSIM fetch | sim(trace) | sim(measured) | last column's sim | "
+              "max per-second diff: sim(trace) | sim(measured) | last column's sim |",
               "|---|---|---|---|---|---|---|---|---|"]
     for r in data["runs"]:
         s, d = r["mean_ssim"], r["max_ssim_diff"]
+        last = "sim_trace_exact_utilities" if r["catalogue"] == "tables" else "sim_trace_utility_order"
         lines.append(f"| {r['method']} | {r['window_start_s']} s | {s['fetch']:.4f} | {s['sim_trace']:.4f} | "
-                     f"{s['sim_measured']:.4f} | {s['sim_trace_utility_order']:.4f} | {d['sim_trace']:.4f} | "
-                     f"{d['sim_measured']:.4f} | {d['sim_trace_utility_order']:.4f} |")
+                     f"{s['sim_measured']:.4f} | {s[last]:.4f} | {d['sim_trace']:.4f} | "
+                     f"{d['sim_measured']:.4f} | {d[last]:.4f} |")
+    within = sum(r["max_ssim_diff"]["sim_trace"] <= 0.02 for r in data["runs"])
+    lines += ["", f"Runs whose simulated per-second SSIM (sim(trace)) is within 0.02 of fetch's every second: "
+                  f"**{within} of {len(data['runs'])}**."]
+    tab = [r for r in data["runs"] if r["catalogue"] == "tables"]
+    if tab:
+        lines += [f"`@tables` runs read {tab[0]['metadata_bytes']:,} bytes of metadata (tables.json and the tables) "
+                  f"before slot 0, against the {data['catalogue_bytes']:,} bytes of the whole bundle a "
+                  "full-catalogue client reads."]
     lines += ["", "Per-second SSIM (fetch / sim(trace)):", ""]
     for r in data["runs"]:
         lines.append(f"- {r['method']} @ {r['window_start_s']} s: " + " ".join(
             f"{a:.3f}/{b:.3f}" for a, b in zip(r["ssim_fetch"], r["ssim_per_s"]["sim_trace"])))
+    busy = [q for r in data["runs"] for q in r["bytes_ratio_busy"]]
+    if busy:
+        lines += ["", f"Bytes, all runs: {len(busy)} busy slots after slot 0, fetch/trace from {min(busy):.3f} to "
+                      f"{max(busy):.3f}; within 5 %: {sum(abs(q - 1) <= 0.05 for q in busy)} of {len(busy)}."]
     paced_cpu = sum(r["server_cpu_s"] for r in data["runs"])
     paced_mb = sum(r["bytes_served"] for r in data["runs"]) / 1e6
     lines += ["", "## Server cost", "",
@@ -279,7 +310,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--windows", default="0,20,40")
     ap.add_argument("--slots", type=int, default=16)
-    ap.add_argument("--methods", default="l3gs:visibility,l3gs:eq1,sort")
+    ap.add_argument("--methods", default="l3gs:visibility,l3gs:eq1,sort,l3gs:visibility@tables,l3gs:eq1@tables")
     ap.add_argument("--load-s", type=float, default=10.0)
     ap.add_argument("--clients", type=int, default=50)
     ap.add_argument("--work", default="/tmp/l3gs-bench-delivery")
@@ -293,6 +324,17 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     export, teacher, mbps, log = build_room(work)
     print(f"room exported to {export}; trace scaled to {mbps:.3f} Mbit/s", flush=True)
+    utilities = sorted({m.partition("@")[0].partition(":")[2] or "eq1" for m in args.methods.split(",") if "@tables" in m})
+    if utilities:
+        from l3gs_opt.delivery.tables import TABLES_NAME, export_tables, read_tables
+
+        have = {e["utility"] for e in read_tables(export)} if (export / TABLES_NAME).exists() else set()
+        for u in utilities:
+            if u not in have:
+                t0 = time.monotonic()
+                export_tables(export, utility=u, views=("object",))
+                print(f"  tables for {u}: {time.monotonic() - t0:.0f} s", flush=True)
+                have.add(u)
     runs = []
     server = Server(export, trace=TRACE, mbps=mbps)
     try:

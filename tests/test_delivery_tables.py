@@ -188,3 +188,20 @@ def test_splat_order_is_validated_and_recorded(world, tmp_path):
                  out_dir=tmp_path / "s")
     summary = json.loads((tmp_path / "s" / "summary.jsonl").read_text().splitlines()[-1])
     assert summary["config"]["splat_order"] == "stored" and r.summary["slots"] == 3
+
+
+def test_tables_merge_by_utility_and_refuse_another_index(world, tmp_path):
+    folder = tmp_path / "s"
+    shutil.copytree(world["served"], folder)
+    export_tables(folder, utility="visibility", views=("object",), counts=(2, 2, 1), yaw_steps=4,
+                  pitches_deg=(0.0,), width=32, height=24)
+    assert sorted((e["utility"], e["view"]) for e in read_tables(folder)) == \
+        [("eq1", "object"), ("eq1", "scene"), ("visibility", "object")]
+    t = _tables(folder)[("visibility", "object")]
+    assert t.shape_jl == _tables(folder)[("eq1", "object")].shape_jl and t.values.nnz > 0
+    # The export written again differently (per-chunk files): its index changes, the tables are stale.
+    export_stream(world["root"] / "bundle", folder, pack="per-chunk")
+    with pytest.raises(TablesError, match="index_sha256: the tables were made from another index.json"):
+        read_tables(folder)
+    with pytest.raises(Exception, match="index_sha256"):
+        start_server(folder)

@@ -369,8 +369,9 @@ class HttpLink:
 CATALOGUES = ("full", "tables")
 
 
-def _fetch_tables(link: "HttpLink") -> tuple[dict, int]:
-    """The server's utility tables by (utility, view), and the metadata bytes read (manifest + files)."""
+def _fetch_tables(link: "HttpLink", index_bytes: bytes) -> tuple[dict, int]:
+    """The server's utility tables (made from ``index_bytes``) by (utility, view), and the metadata
+    bytes read (manifest + files)."""
     from l3gs_opt.delivery.tables import TABLES_NAME, load_table, read_tables
 
     try:
@@ -379,7 +380,7 @@ def _fetch_tables(link: "HttpLink") -> tuple[dict, int]:
         raise FetchError("catalogue", f"'tables': the server has no {TABLES_NAME} ({exc}); export them with "
                                       "'l3gs-opt bundle tables', or use catalogue 'full'") from None
     tables, total = {}, len(raw)
-    for entry in read_tables(raw):
+    for entry in read_tables(raw, index_bytes=index_bytes):
         data = link.get(entry["file"])
         total += len(data)
         tables[(entry["utility"], entry["view"])] = load_table(entry, data)
@@ -566,7 +567,7 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             if index.representation != "layered":
                 raise FetchError("catalogue", f"'tables' needs a layered bundle (placeholder rows stand for splats not "
                                               f"yet received), not {index.variant!r}; use catalogue 'full'")
-            tables, metadata_bytes = _fetch_tables(link)
+            tables, metadata_bytes = _fetch_tables(link, raw)
             info["metadata_bytes"] = metadata_bytes
             bundle = _ReceivedBundle(path=index.path, manifest=index.bundle_manifest(), index=index, store=store)
             if reference is None:

@@ -7,9 +7,13 @@ and served as files. :func:`export_tables` writes one table per (utility, view) 
 ``index.json`` and lists them in ``tables.json``::
 
     {"schema": "l3gs-opt/utility-tables/1",
+     "index_sha256": "...the index.json the tables were made from...",
      "tables": [{"file": "utility-eq1-object.npz", "utility": "eq1", "view": "object",
-                 "bytes": 20934, "sha256": "..."}],
-     "grid": {...how the grid was chosen...}}
+                 "bytes": 20934, "sha256": "...", "grid": {...how the grid was chosen...}}]}
+
+Tables of other utilities or views already listed are kept (a table of the same utility and view
+is replaced), unless they were made from another ``index.json`` (an export written again): then
+the manifest starts over. A reader refuses tables made from another index (stale utilities).
 
 The server serves ``tables.json`` and the files it lists (:mod:`l3gs_opt.delivery.server`);
 ``l3gs-opt fetch --catalogue tables`` reads them (:func:`load_table`).
@@ -33,6 +37,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_json
+from l3gs_opt.scene.stream_index import INDEX_NAME
 
 __all__ = ["TablesError", "TABLES_NAME", "TABLES_SCHEMA", "export_tables", "read_tables", "load_table"]
 
@@ -98,11 +103,21 @@ def export_tables(export_dir, *, utility: str = "eq1", views: Sequence[str] = ("
         raise TablesError("up", f"{up!r}: must be x, y or z")
     name = get_utility(utility).name   # an unknown name fails here, before any work
     folder = Path(export_dir)
+    index_sha = hashlib.sha256((folder / INDEX_NAME).read_bytes()).hexdigest() \
+        if (folder / INDEX_NAME).is_file() else None
     bundle = stream_bundle(read_stream(folder))
     base = _base_scene(bundle)
     lo, hi = _grid_box(base[0].means, float(margin))
     positions = grid_positions(lo, hi, counts)
+    grid = {"lo": lo.tolist(), "hi": hi.tolist(), "counts": [int(c) for c in counts], "margin": margin,
+            "yaw_steps": yaw_steps, "pitches_deg": [float(x) for x in pitches_deg], "up": up, "width": width,
+            "height": height, "fov_deg": fov_deg}
     entries = []
+    if (folder / TABLES_NAME).is_file():
+        try:
+            entries = read_tables(folder)
+        except TablesError:
+            entries = []   # another index's (or a broken) manifest: start over
     for view in views:
         cat = build_catalog(bundle, view, base=base)
         J, L = cat.shape
@@ -115,12 +130,10 @@ def export_tables(export_dir, *, utility: str = "eq1", views: Sequence[str] = ("
         tmp = folder / (file + ".part")
         tmp.write_bytes(data)
         os.replace(tmp, folder / file)
+        entries = [e for e in entries if (e["utility"], e["view"]) != (name, view)]
         entries.append({"file": file, "utility": name, "view": view, "bytes": len(data),
-                        "sha256": hashlib.sha256(data).hexdigest()})
-    manifest = {"schema": TABLES_SCHEMA, "tables": entries,
-                "grid": {"lo": lo.tolist(), "hi": hi.tolist(), "counts": [int(c) for c in counts],
-                         "margin": margin, "yaw_steps": yaw_steps, "pitches_deg": list(pitches_deg), "up": up,
-                         "width": width, "height": height, "fov_deg": fov_deg}}
+                        "sha256": hashlib.sha256(data).hexdigest(), "grid": grid})
+    manifest = {"schema": TABLES_SCHEMA, "index_sha256": index_sha, "tables": entries}
     out = folder / TABLES_NAME
     tmp = folder / (TABLES_NAME + ".part")
     tmp.write_text(json.dumps(manifest, indent=1) + "\n")
@@ -128,14 +141,17 @@ def export_tables(export_dir, *, utility: str = "eq1", views: Sequence[str] = ("
     return out
 
 
-def read_tables(source) -> list[dict]:
+def read_tables(source, *, index_bytes: Optional[bytes] = None) -> list[dict]:
     """The checked entries of a ``tables.json`` (a path, a folder holding it, or its bytes).
+
+    ``index_bytes``: the ``index.json`` the tables must have been made from (default, for a path:
+    the one beside the manifest; for bytes: not checked).
 
     Raises
     ------
     TablesError
-        Not the schema; an entry without a safe relative file name, a utility, a view of
-        :data:`_VIEWS`, a byte count or a SHA-256.
+        Not the schema; tables made from another index; an entry without a safe relative file
+        name, a utility, a view of ``object``/``scene``, a byte count or a SHA-256.
     """
     if isinstance(source, (bytes, bytearray)):
         try:
@@ -147,8 +163,13 @@ def read_tables(source) -> list[dict]:
         if p.is_dir():
             p = p / TABLES_NAME
         m = read_json(p, lambda f, msg: TablesError(f, msg), field="tables")
+        if index_bytes is None and (p.parent / INDEX_NAME).is_file():
+            index_bytes = (p.parent / INDEX_NAME).read_bytes()
     if not isinstance(m, dict) or m.get("schema") != TABLES_SCHEMA:
         raise TablesError("schema", f"must be {TABLES_SCHEMA!r}")
+    if index_bytes is not None and m.get("index_sha256") != hashlib.sha256(index_bytes).hexdigest():
+        raise TablesError("index_sha256", "the tables were made from another index.json (the export was written "
+                                          "again): run 'l3gs-opt bundle tables' again")
     entries = m.get("tables")
     if not isinstance(entries, list):
         raise TablesError("tables", "must be a list")
