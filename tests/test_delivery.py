@@ -441,13 +441,13 @@ def test_fetch_resumes_the_unit_in_flight(world, tmp_path, monkeypatch):
     out = tmp_path / "out"
     real_end = fetch_module._FetchClient.end_slot
 
-    def end_then_stop(self):
+    def end_then_stop(self, *, defer=False):
         # Stop after the first slot with a unit in flight (a cut can fall between two units: then
         # after slot 2 whatever it holds; on this bundle and trace slot 0 or 2 has one).
         record = real_end(self)
         if record["in_flight"] or record["slot"] == 2:
             raise KeyboardInterrupt
-        return record
+        return (lambda: record) if defer else record
 
     trace_file = tmp_path / "trace.txt"
     trace_file.write_text("0.32\n" * 4)          # 40 kB per 1 s slot

@@ -17,7 +17,10 @@ schedules (nothing of that is repeated here); only its delivery is replaced. Eac
    the measured bytes as the slot's share, which reproduces the wire's per-unit bytes exactly
    (the same sequential order): this is checked every slot, so the records, the rendering and
    the next prediction rest on what really arrived.
-4. ``Client.end_slot``: render what is held from the true viewpoint, score, record.
+4. ``Client.end_slot``: render what is held from the true viewpoint, score, record -- deferred
+   until the next slot's requests are out (a client plans first and draws while they stream; the
+   seconds between a slot's start and its requests, ``late_s``, are link time the carried-over
+   unit alone can use, which the simulator's link does not model).
 
 So given the same bytes per slot, ``fetch`` asks for the same chunks in the same order as
 ``simulate`` (``tests/test_delivery.py`` checks it); what differs is where the bytes come from.
@@ -46,8 +49,10 @@ Differences from ``simulate`` (beyond real time)
 * ``substeps > 1`` (re-planning within a slot) is not supported.
 
 Records: ``OUT/slots.jsonl`` and ``OUT/summary.jsonl`` as ``simulate`` writes them (same keys),
-plus per slot ``fetch``: ``{"bytes_received", "late_s"}`` (seconds after the slot's start its
-requests went out). ``OUT/index.json`` is the fetched index and ``OUT/fetched/cN.bin`` the bytes
+plus per slot ``fetch``: ``{"bytes_received", "late_s", "cut_late_s", "retries"}`` (seconds after
+the slot's start its requests went out; seconds after the slot's end its bytes were counted -- the
+previous slot's picture is drawn in between, so a draw longer than the slot's rest makes the slot
+longer -- and connection retries). ``OUT/index.json`` is the fetched index and ``OUT/fetched/cN.bin`` the bytes
 received of chunk N, which ``resume`` reloads (after the recorded slots are replayed through the
 link model) before it continues the unit that was in flight.
 """
@@ -603,7 +608,19 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
         if tables is not None:
             _refresh(sim, bundle)
         link.begin(units, store, trace_slot=start + cl.first_slot, carried=carried)
+        # The references the pictures are scored against, before the clock starts (evaluation work;
+        # the first render also compiles the renderer, which would make slot 0's cut late).
+        for t in range(cl.first_slot, sim.T):
+            sim.reference_image(t)
         t_zero = None
+        pending = None          # the last slot's picture: drawn while this slot's requests stream
+
+        def draw() -> None:
+            record = pending()
+            if progress:
+                print(f"slot {record['slot']}: {record['fetch']['bytes_received']} bytes, SSIM {record['ssim']:.4f}",
+                      file=sys.stderr, flush=True)
+
         for t in range(cl.first_slot, sim.T):
             cl.fetch_info = {}
             cl.begin_slot(cl.slot_inputs(t))
@@ -614,9 +631,12 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             slot_start = t_zero + (t - cl.first_slot) * config.slot_s
             link.submit(ids, trace_slot=start + t)
             late = max(0.0, now - slot_start)
+            if pending is not None:
+                draw()
             wait = slot_start + config.slot_s - time.monotonic()
             if wait > 0:
                 time.sleep(wait)
+            cut_late = max(0.0, time.monotonic() - slot_start - config.slot_s)
             got, retries = link.cut()
             measured = int(sum(got.values()))
             cl.deliver(ids, measured)
@@ -628,10 +648,11 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
                             cl.complete)
             if tables is not None and d.delivered:
                 _refresh(sim, bundle)
-            cl.fetch_info = {"bytes_received": measured, "late_s": round(late, 6), "retries": retries}
-            cl.end_slot()
-            if progress:
-                print(f"slot {t}: {measured} bytes, SSIM {cl.records[-1]['ssim']:.4f}", file=sys.stderr, flush=True)
+            cl.fetch_info = {"bytes_received": measured, "late_s": round(late, 6), "cut_late_s": round(cut_late, 6),
+                             "retries": retries}
+            pending = cl.end_slot(defer=True)
+        if pending is not None:
+            draw()
         result = cl.finish()
         if holder is not None:
             holder.cleanup()

@@ -231,35 +231,45 @@ class Client:
             record["clients"] = self.clients
         return record
 
-    def end_slot(self) -> dict:
-        """Render what is held from the true viewpoint, score it, record the slot."""
-        from l3gs_opt.renderer.metrics import psnr, ssim
+    def end_slot(self, *, defer: bool = False):
+        """Render what is held from the true viewpoint, score it, record the slot.
 
+        ``defer``: close the slot's bookkeeping now (the bandwidth history, what is shown) and
+        return a callable that renders, scores and records it later -- a real client plans the
+        next slot first and draws while its requests stream (``l3gs-opt fetch``). Call it before
+        the next ``end_slot``. Returns the record (or that callable).
+        """
         sim, acc, t = self.sim, self.acc, self.t
         self.history.append(acc["share"])
         record = self._slot_record()
         self.idle_total += record["bytes_idle"]
-        t2 = time.perf_counter()
         rows, _, full = sim.shown_rows(self.cat, self.got, self.complete, self.order, self.spec.preload)
-        image, reused = sim.client_image(rows, full, sim.true_camera(t))
-        render_s = time.perf_counter() - t2
-        ref, reference_s = sim.reference_image(t)
-        t3 = time.perf_counter()
-        s, p = ssim(image, ref), psnr(image, ref)
-        metrics_s = time.perf_counter() - t3
-        record.update(ssim=s, psnr=_finite_or_none(p), splats_shown=int(rows.size), render_reused=reused,
-                      timings_s={"prediction": self.inputs.prediction["prediction_s"],
-                                 "utility": acc["lookup_s"] + acc["order_s"],
-                                 "scheduling": acc["schedule_s"], "rendering": render_s, "reference": reference_s,
-                                 "metrics": metrics_s})
-        if full is not None:
-            record["splats_full_sh"] = int(full.sum())
-        if self.views is not None:
-            _save_png(self.views[0] / f"{t:03d}.png", image)
-            _save_png(self.views[1] / f"{t:03d}.png", ref)
-        self.records.append(record)
-        self.writer.slot(record)
-        return record
+        timings = {"prediction": self.inputs.prediction["prediction_s"], "utility": acc["lookup_s"] + acc["order_s"],
+                   "scheduling": acc["schedule_s"]}
+
+        def finish() -> dict:
+            from l3gs_opt.renderer.metrics import psnr, ssim
+
+            t2 = time.perf_counter()
+            image, reused = sim.client_image(rows, full, sim.true_camera(t))
+            render_s = time.perf_counter() - t2
+            ref, reference_s = sim.reference_image(t)
+            t3 = time.perf_counter()
+            s, p = ssim(image, ref), psnr(image, ref)
+            metrics_s = time.perf_counter() - t3
+            record.update(ssim=s, psnr=_finite_or_none(p), splats_shown=int(rows.size), render_reused=reused,
+                          timings_s={**timings, "rendering": render_s, "reference": reference_s,
+                                     "metrics": metrics_s})
+            if full is not None:
+                record["splats_full_sh"] = int(full.sum())
+            if self.views is not None:
+                _save_png(self.views[0] / f"{t:03d}.png", image)
+                _save_png(self.views[1] / f"{t:03d}.png", ref)
+            self.records.append(record)
+            self.writer.slot(record)
+            return record
+
+        return finish if defer else finish()
 
     # -- resume ---------------------------------------------------------------------------------------
     def _replay(self, record: dict) -> None:
