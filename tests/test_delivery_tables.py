@@ -205,3 +205,26 @@ def test_tables_merge_by_utility_and_refuse_another_index(world, tmp_path):
         read_tables(folder)
     with pytest.raises(Exception, match="index_sha256"):
         start_server(folder)
+
+
+def test_decision_time_costs_link_time(world):
+    """decision_s: at each slot after the first, the planning time's bytes go to the carried-over unit
+    or are lost; 0 is the default model; fetch refuses it (it measures its own)."""
+    from l3gs_opt.simulator.simulation import SimConfig, SimulationError, simulate
+
+    with pytest.raises(SimulationError, match="decision_s"):
+        SimConfig(decision_s=-0.1)
+    with pytest.raises(SimulationError, match="decision_s"):
+        SimConfig(decision_s=0.6, substeps=2)
+    bundle = stream_bundle(read_stream(world["plain"]))
+    runs = {}
+    for d in (0.0, 0.5):
+        cfg = SimConfig(width=32, height=24, samples_per_slot=1, decision_s=d)
+        runs[d] = simulate(bundle, world["log"], [20_000] * 5, "l3gs", config=cfg).records
+    assert runs[0.0][0]["bytes_delivered"] == runs[0.5][0]["bytes_delivered"]   # slot 0: no planning head
+    for r in runs[0.5]:
+        assert r["bytes_delivered"] + r["bytes_idle"] == r["bytes_capacity"]
+    assert sum(r["bytes_delivered"] for r in runs[0.5]) < sum(r["bytes_delivered"] for r in runs[0.0])
+    with pytest.raises(FetchError, match="decision_s"):
+        fetch("http://127.0.0.1:9", str(world["trace"]), world["log"], "l3gs", None, slots=1,
+              config=SimConfig(decision_s=0.1))

@@ -178,3 +178,56 @@ def test_split_bytes_and_per_step_bandwidth():
     assert link.demand([("y", 3)]) == 9            # 6 in flight + 3 requested
     with pytest.raises(LinkError, match=r"bandwidth\[1\] = -2"):
         link.step(bandwidth=-2)
+
+
+def _reference_with_head(bandwidth, budget, request_lists, heads):
+    """One byte at a time with a planning head: the slot's first ``heads[t]`` bytes may go only to
+    transfers carried over; those they cannot use are lost (idle, never banked)."""
+    flight: list[list] = []
+    bank = 0
+    out = []
+    for t, requests in enumerate(request_lists):
+        carried = list(flight)
+        queue = flight + [[k, s, 0] for k, s in requests]
+        cap = bandwidth[t] + bank
+        delivered: dict = {}
+        used = lost = 0
+        for i in range(cap):
+            pool = carried if i < heads[t] else queue
+            head = next((q for q in pool if q[2] < q[1]), None)
+            if head is None:
+                if i < heads[t]:
+                    lost += 1
+                    continue
+                break
+            head[2] += 1
+            used += 1
+            delivered[head[0]] = delivered.get(head[0], 0) + 1
+        flight = [q for q in queue if 0 < q[2] < q[1]]
+        idle = cap - used
+        bank = (idle - lost) if budget == "cumulative" else 0
+        out.append((delivered, [(q[0], q[1] - q[2]) for q in flight], idle, bank))
+    return out
+
+
+@pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
+@pytest.mark.parametrize("seed", range(8))
+def test_planning_head_matches_byte_by_byte_reference(budget, seed):
+    rng = np.random.default_rng(seed)
+    T = 6
+    bandwidth = [int(x) for x in rng.integers(0, 40, size=T)]
+    heads = [int(x) for x in rng.integers(0, 25, size=T)]
+    reqs = [[(f"{t}-{i}", int(rng.integers(1, 30))) for i in range(int(rng.integers(0, 4)))] for t in range(T)]
+    link = Link(bandwidth, budget=budget)
+    for (delivered, flight, idle, bank), requests, h in zip(_reference_with_head(bandwidth, budget, reqs, heads),
+                                                          reqs, heads):
+        d = link.step(requests, head_bytes=h)
+        assert (d.delivered, list(d.in_flight), d.idle, d.banked) == (delivered, flight, idle, bank)
+
+
+def test_planning_head_hand_computed():
+    link = Link([100, 100])
+    d = link.step([("a", 130)])
+    assert d.in_flight == (("a", 30),)
+    d = link.step([("b", 200)], head_bytes=50)     # 'a' uses 30 of the 50, 20 are lost, 'b' gets 50
+    assert d.delivered == {"a": 30, "b": 50} and d.idle == 20

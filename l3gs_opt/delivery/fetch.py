@@ -521,6 +521,9 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
 
     if config.substeps != 1:
         raise FetchError("substeps", f"{config.substeps}: fetch plans once per slot (substeps 1)")
+    if config.decision_s:
+        raise FetchError("decision_s", f"{config.decision_s}: fetch takes the time it takes to plan (records' "
+                                       "late_s); decision_s models it in simulate only")
     # Static chunk files arrive in their stored order (the records say so: simulate with the same
     # config reproduces it).
     config = dataclasses.replace(config, splat_order="stored")

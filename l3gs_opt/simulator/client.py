@@ -188,7 +188,10 @@ class Client:
     def deliver(self, ids: Sequence[int], share: int) -> None:
         """Move ``share`` bytes of the bottleneck (plus the bank) for the current part."""
         cat, acc = self.cat, self.acc
-        delivery = self.link.step([(k, int(cat.bytes[k])) for k in ids], bandwidth=share)
+        head = 0
+        if self.cfg.decision_s and (self.t > 0 or self.part > 0):   # slot 0's clock starts with its requests
+            head = int(round(int(share) * self.cfg.decision_s * self.cfg.substeps / self.cfg.slot_s))
+        delivery = self.link.step([(k, int(cat.bytes[k])) for k in ids], bandwidth=share, head_bytes=head)
         t1 = time.perf_counter()
         for k in delivery.started:
             self.order[k] = self.inputs.splat_order(k) if self.spec.order == "utility" \

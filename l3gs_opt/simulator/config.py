@@ -84,6 +84,11 @@ class SimConfig:
     bandwidth_bias : float
         The predicted bytes of a slot are multiplied by this (> 0): 1 is the predictor as is,
         above 1 an over-optimistic predictor (for sensitivity studies).
+    decision_s : float
+        Seconds the client takes to plan at each re-plan point after the first (>= 0; 0, the
+        paper's model: requests go out as the slot starts). Meanwhile only the unit carried over
+        streams; the bytes of that time it cannot use are lost (idle), as ``l3gs-opt fetch``
+        measures them (its records' ``late_s``).
     sh_upgrade_utility : {"residual", "bands"} or float
         How a ``distill`` splat's Eq. 1 utility ``u`` is split between its compact form and its
         SH upgrade (Eq. 1 is colour-blind): the upgrade gets ``u * f``, the compact form
@@ -120,6 +125,7 @@ class SimConfig:
     backend: str = "highs"
     substeps: int = 1
     bandwidth_bias: float = 1.0
+    decision_s: float = 0.0
     sh_upgrade_utility: str | float = "residual"
 
     def __post_init__(self) -> None:
@@ -134,6 +140,10 @@ class SimConfig:
             positive(name)
         for name in ("width", "height", "samples_per_slot", "bandwidth_window", "substeps"):
             positive(name, integer=True)
+        d = self.decision_s
+        if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) or not math.isfinite(d) \
+                or not 0 <= d <= self.slot_s / self.substeps:
+            raise SimulationError("decision_s", f"{d!r}: must be seconds in [0, slot_s / substeps]")
         if self.width < 11 or self.height < 11:
             raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),

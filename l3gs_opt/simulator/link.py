@@ -153,11 +153,15 @@ class Link:
         its bank: what it asks of a shared bottleneck."""
         return max(0, self.in_flight_bytes + sum(int(size) for _, size in requests) - self.bank)
 
-    def step(self, requests: Sequence[tuple[Hashable, int]] = (), *, bandwidth: int | None = None) -> SlotDelivery:
+    def step(self, requests: Sequence[tuple[Hashable, int]] = (), *, bandwidth: int | None = None,
+             head_bytes: int = 0) -> SlotDelivery:
         """Run the next slot with ``requests`` (``(key, size in bytes)``, in sending order).
 
         ``bandwidth`` (bytes) replaces the slot's entry of the trace first: a link whose share
         of a bottleneck is decided as the slot runs (see :func:`max_min_shares`).
+        ``head_bytes``: the slot's first bytes go out before ``requests`` are made (the client is
+        still planning): only the transfers in flight may use them, and what they cannot use is
+        idle (lost, never banked: the link time has passed).
 
         Raises
         ------
@@ -182,7 +186,9 @@ class Link:
             busy.add(key)
             queue.append(Transfer(key, size))
         capacity = self.bandwidth[self.slot] + self.bank
-        left = capacity
+        head = min(_byte_count(head_bytes, "head_bytes"), capacity)
+        lost = max(0, head - sum(tr.remaining for tr in self.in_flight))
+        left = capacity - lost
         delivered: dict = {}
         started, completed, carried, dropped = [], [], [], []
         for tr in queue:
@@ -203,7 +209,8 @@ class Link:
         self.bank = left if self.budget == "cumulative" else 0
         out = SlotDelivery(slot=self.slot, capacity=capacity, delivered=delivered, started=tuple(started),
                            completed=tuple(completed), dropped=tuple(tr.key for tr in dropped),
-                           in_flight=tuple((tr.key, tr.remaining) for tr in carried), idle=left, banked=self.bank)
+                           in_flight=tuple((tr.key, tr.remaining) for tr in carried), idle=left + lost,
+                           banked=self.bank)
         self.slot += 1
         return out
 
