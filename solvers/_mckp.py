@@ -33,6 +33,8 @@ import numpy as np
 
 from l3gs_opt.errors import SolveError
 
+from . import _kp01
+
 __all__ = [
     "BOUND_SLACK",
     "MAX_DP_CELLS",
@@ -702,6 +704,12 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
     candidates (numba's import is not worth it for small DPs), True uses it for every stage with
     more than one option, False never; without numba the numpy path runs in every case.
 
+    A 0-1 knapsack (one option per row) with integer values goes first to the exact integer search of
+    :func:`l3gs_opt.solvers._kp01.solve_kp01` (relaxed-DP and LP bounds on Pareto states) for half
+    the time left after a short first try of the search above (``_KP01_QUICK_S``), then, if
+    unproven, to the search above again on the rest; the better answer and the lower of the
+    (valid) bounds are returned.
+
     The reported bound is the largest bound of anything pruned (or, when stopped early, of any
     live state), never below ``z``: a valid upper bound in every case.
     """
@@ -710,6 +718,69 @@ def branch_and_bound(table: OptionTable, *, time_limit_s: float | None = None,
     stats: dict = {"rows": n}
     if n == 0:
         return MckpResult(np.zeros(0, np.int64), 0.0, 0.0, True, stats)
+    if K == 1 and _kp01.fits_kp01(table.cost[:, 0], table.value[:, 0]):
+        return _branch_and_bound_01(table, time_limit_s=time_limit_s, max_states=max_states, compiled=compiled)
+    return _branch_and_bound_mckp(table, time_limit_s=time_limit_s, max_states=max_states, compiled=compiled,
+                                  started=started)
+
+
+#: Share of ``bb``'s time limit the integer 0-1 search (:mod:`l3gs_opt.solvers._kp01`) gets before
+#: the Lagrangian state DP takes over on what remains: each proves instances the other does not
+#: (Jooken et al.'s set: the relaxed-DP bound sees that items are indivisible, the Lagrangian
+#: envelope orders and cuts the core better on others).
+_KP01_SHARE = 0.5
+
+#: Seconds (at most a tenth of the time limit) the MCKP search gets on a 0-1 table before the
+#: integer search starts.
+_KP01_QUICK_S = 1.0
+
+
+def _float_up(x: int) -> float:
+    """The least float64 >= the integer ``x`` (an exact bound stays a bound above 2**53)."""
+    f = float(x)
+    return math.nextafter(f, math.inf) if f < x else f
+
+
+def _branch_and_bound_01(table: OptionTable, *, time_limit_s: float | None, max_states: int,
+                         compiled: bool | None) -> MckpResult:
+    """0-1 knapsack with integer values: the exact integer search first, then (if it has not
+    proven its answer) the MCKP state DP on the time left; the better answer, the lower bound."""
+    started = time.perf_counter()
+    # A short try of the MCKP search first: it proves most 0-1 instances (Pisinger's) in
+    # milliseconds, before the integer search builds its bound tables (tenths of a second).
+    quick = _KP01_QUICK_S if time_limit_s is None else min(_KP01_QUICK_S, 0.1 * time_limit_s)
+    early = _branch_and_bound_mckp(table, time_limit_s=quick, max_states=max_states, compiled=compiled,
+                                   started=started)
+    left = None if time_limit_s is None else max(0.0, time_limit_s - (time.perf_counter() - started))
+    if early.optimal or compiled_kernels() is None:   # the integer search's stage needs numba
+        if early.optimal or left == 0.0:
+            return early
+        return _branch_and_bound_mckp(table, time_limit_s=left, max_states=max_states, compiled=compiled,
+                                      started=time.perf_counter())
+    first = None if left is None else left * _KP01_SHARE
+    kp = _kp01.solve_kp01(table.cost[:, 0], table.value[:, 0], table.budget, time_limit_s=first,
+                          incumbent=early.choice >= 0)
+    choice = np.where(kp.take, 0, -1).astype(np.int64)
+    value = _pick(table, choice)[1]
+    stats = {"rows": table.n, **{f"kp01_{k}": v for k, v in kp.stats.items()}}
+    if kp.optimal:
+        return MckpResult(choice, value, max(value, _float_up(kp.bound)), True, stats)
+    left = None if time_limit_s is None else max(0.0, time_limit_s - (time.perf_counter() - started))
+    other = _branch_and_bound_mckp(table, time_limit_s=left, max_states=max_states, compiled=compiled,
+                                   started=time.perf_counter())
+    stats.update(other.stats)
+    bound = min(_float_up(kp.bound), other.bound)
+    if other.value > value:
+        choice, value = other.choice, other.value
+    optimal = other.optimal or bound <= value
+    return MckpResult(choice, value, max(bound, value), optimal, stats)
+
+
+def _branch_and_bound_mckp(table: OptionTable, *, time_limit_s: float | None, max_states: int,
+                           compiled: bool | None, started: float) -> MckpResult:
+    """The MCKP search of :func:`branch_and_bound` (any table)."""
+    n, K = table.cost.shape
+    stats: dict = {"rows": n}
     lp = lp_relaxation(table)
     inc = greedy(table, lp)
     z, best_choice = inc.value, inc.choice

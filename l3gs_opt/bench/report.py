@@ -27,7 +27,7 @@ import numpy as np
 
 from l3gs_opt.bench.run import AGREE_TOL, BenchError, check_records, is_declined, read_records, recheck
 
-__all__ = ["ERROR_FLOOR", "annotate", "write_report", "summarise"]
+__all__ = ["ERROR_FLOOR", "annotate", "write_report", "summarise", "known_optima_summary", "known_optima_lines"]
 
 #: Relative errors below this are drawn at it on log axes (exact answers have error 0).
 ERROR_FLOOR = 1e-12
@@ -107,6 +107,69 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, An
             "flags": sorted({f for r in rs for f in r.get("flags", []) if f != "declined"}),
         }
     return table
+
+
+def _known_optimum(record: dict[str, Any]) -> int | None:
+    """The published optimum a record's spec carries (``knapsack-sets``), or None."""
+    params = (record.get("spec") or {}).get("params") or {}
+    opt = params.get("optimum")
+    return opt if isinstance(opt, int) and not isinstance(opt, bool) else None
+
+
+def _equals_int(value: float | None, target: int) -> bool:
+    # Objectives are float sums of integer profits below 2**53: exact, so compare exactly.
+    return value is not None and math.isfinite(value) and value == int(value) and int(value) == target
+
+
+def known_optima_summary(records: list[dict[str, Any]], *, slow_s: float = 20.0) -> dict[tuple[str, str, str], dict]:
+    """Per (suite, set, method), over records whose spec carries a published optimum: how many
+    reach it (feasible, objective re-evaluated equal, value equal in exact integers), how many are
+    proven optimal, how many are labelled optimal with another value (must be 0), how many report a
+    bound below the optimum (must be 0), median and max run time (s), and how many are not proven
+    within ``slow_s`` seconds (not optimal, or slower)."""
+    groups: dict[tuple[str, str, str], list[dict]] = defaultdict(list)
+    for r in records:
+        opt = _known_optimum(r)
+        if opt is None:
+            continue
+        params = r["spec"]["params"]
+        groups[(r["suite"], str(params.get("set", "-")), r["method"])].append(r)
+    out: dict[tuple[str, str, str], dict] = {}
+    for key, rs in sorted(groups.items()):
+        reached = proven = wrong = low_bound = slow = 0
+        for r in rs:
+            opt = _known_optimum(r)
+            ok = bool(r.get("feasible")) and bool(r.get("objective_ok"))
+            hit = ok and _equals_int(r.get("objective"), opt)
+            reached += hit
+            is_opt = r.get("status") == "optimal"
+            proven += is_opt and hit
+            wrong += is_opt and not hit
+            b = r.get("bound")
+            low_bound += b is not None and b < opt
+            slow += not (is_opt and hit and (r.get("runtime_s") or 0.0) <= slow_s)
+        times = [r["runtime_s"] for r in rs if r.get("runtime_s") is not None]
+        out[key] = {"records": len(rs), "reached": reached, "proven": proven, "wrong_optimal": wrong,
+                    "bound_below_optimum": low_bound,
+                    "median_time_s": float(np.median(times)) if times else None,
+                    "max_time_s": float(max(times)) if times else None, "not_proven_within": slow,
+                    "slow_s": slow_s}
+    return out
+
+
+def known_optima_lines(summary: dict[tuple[str, str, str], dict]) -> list[str]:
+    """Markdown table of :func:`known_optima_summary` (empty when no record has a known optimum)."""
+    if not summary:
+        return []
+    slow = next(iter(summary.values()))["slow_s"]
+    lines = ["| suite | set | method | records | reach optimum | proven optimal | optimal but wrong | bound below "
+             f"optimum | median time (s) | max time (s) | not proven in {slow:g} s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (suite, set_, method), s in summary.items():
+        lines.append(f"| {suite} | {set_} | {method} | {s['records']} | {s['reached']} | {s['proven']} | "
+                     f"{s['wrong_optimal']} | {s['bound_below_optimum']} | {_fmt(s['median_time_s'])} | "
+                     f"{_fmt(s['max_time_s'])} | {s['not_proven_within']} |")
+    return lines
 
 
 def _pareto(points: list[tuple[float, float, str]]) -> list[tuple[float, float, str]]:
@@ -285,6 +348,11 @@ def write_report(records_path: str | os.PathLike[str] | Iterable[dict], out_dir:
                 lines.append(f"| {r['instance_id']} | {r['method']} | {r['status']} | {err} "
                              f"| {_fmt(r.get('feasible'))} | {_fmt(r.get('bound_valid'))} |")
             lines.append("")
+    known = known_optima_lines(known_optima_summary(records))
+    if known:
+        lines += ["## Published optima", "", "Records whose instance has a published optimum (e.g. `knapsack-sets`): "
+                  "reach = feasible with exactly that value; proven = also labelled optimal; optimal but wrong and "
+                  "bound below optimum must be 0.", "", *known, ""]
     flagged = [r for r in records if [f for f in r.get("flags", []) if f != "declined"] or r.get("bound_valid") is False]
     lines += ["## Flagged records", ""]
     if flagged:

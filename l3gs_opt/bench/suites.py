@@ -10,13 +10,20 @@ another machine, rebuilds the very same instance from it. Suites:
 * ``stiff``: utilities over 18 orders of magnitude, costs over 7, ties, zero and huge bandwidth,
   one object, one layer, all held, chunks that never fit, near-equal efficiencies, utilities near
   the 1e300 total limit and subnormal ones, 1-byte chunks beside 10^12- and 2^53-byte budgets;
-* ``problems``: Problems I-IV and the GAP form over T slots, exact ILP against the schedulers.
+* ``problems``: Problems I-IV and the GAP form over T slots, exact ILP against the schedulers;
+* ``knapsack-sets``: the public 0-1 knapsack files with known optima (Pisinger's large-scale classes,
+  Jooken et al.'s hard set) from :data:`KNAPSACK_DIR_ENV` or ``../shared/data/reference/knapsack``
+  beside the repository; each spec carries the published optimum (``params["optimum"]``) into its
+  records. Without the folder the suite is empty and says so in one line on stderr.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -27,7 +34,8 @@ from l3gs_opt.problem.instance import MAX_UTILITY_TOTAL, Instance
 from l3gs_opt.pipeline.synth import synth_instance
 from l3gs_opt.traces.bandwidth import bundled_traces, mbps_to_bytes
 
-__all__ = ["InstanceSpec", "SUITES", "suite_specs", "default_methods", "split_method"]
+__all__ = ["InstanceSpec", "SUITES", "ALL_SUITES", "suite_specs", "default_methods", "split_method", "knapsack_dir",
+           "KNAPSACK_DIR_ENV"]
 
 #: The whole L3GS-like slot budget: one second at the paper's 11.8 Mbit/s.
 SLOT_BYTES = int(mbps_to_bytes(np.array([11.8]))[0])
@@ -162,8 +170,17 @@ def _file(*, path: str, slot: int | None = None) -> Instance:
     return inst.replace(bandwidth=inst.bandwidth[slot:slot + 1], utility=inst.utility[slot:slot + 1])
 
 
+def _knapsack(*, path: str, set: str | None = None, optimum: int | None = None) -> Instance:
+    """A Pisinger or Jooken 0-1 knapsack file as a single-slot instance (``set`` and ``optimum``
+    ride along in the spec for the report; the file is the instance)."""
+    from l3gs_opt.problem.knapsack_sets import load_knapsack
+
+    return load_knapsack(path).instance
+
+
 _GENERATORS: dict[str, Callable[..., Instance]] = {"l3gs_slot": _l3gs_slot, "pisinger": _pisinger,
-                                                   "stiff": _stiff, "problem": _problem, "file": _file}
+                                                   "stiff": _stiff, "problem": _problem, "file": _file,
+                                                   "knapsack": _knapsack}
 STIFF_CASES = ("utility_18_orders", "cost_7_orders", "ties", "zero_bandwidth", "huge_bandwidth", "one_object",
                "one_layer", "all_held", "never_fit", "near_equal_efficiency", "utility_near_limit",
                "utility_subnormal", "bytes_1e12", "bytes_2_53")
@@ -171,6 +188,47 @@ PISINGER_CLASSES = ("uncorrelated", "weakly", "strongly", "inverse_strongly")
 
 
 # -- suites -------------------------------------------------------------------------------------------
+
+#: Environment variable naming the folder of the ``knapsack-sets`` suite (subfolders ``pisinger/``
+#: with ``*.txt`` + ``*.opt`` and ``jooken/`` with ``*.in`` + ``optima.csv``).
+KNAPSACK_DIR_ENV = "L3GS_KNAPSACK_DIR"
+
+#: The sets of the ``knapsack-sets`` suite: subfolder and file pattern.
+KNAPSACK_SETS = (("pisinger", "*.txt"), ("jooken", "*.in"))
+
+#: ``--quick``: this many files per set, the smallest first (the full suite is 141 files).
+_KNAPSACK_QUICK = 3
+
+
+def knapsack_dir() -> Path:
+    """The ``knapsack-sets`` folder: ``$L3GS_KNAPSACK_DIR``, else ``../shared/data/reference/knapsack``
+    beside the repository."""
+    env = os.environ.get(KNAPSACK_DIR_ENV)
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[3] / "shared" / "data" / "reference" / "knapsack"
+
+
+def _knapsack_specs(suite: str, quick: bool) -> list[InstanceSpec]:
+    from l3gs_opt.problem.knapsack_sets import load_knapsack
+
+    root = knapsack_dir()
+    if not root.is_dir():
+        # CI has no ../shared: an empty suite with one line, never a traceback.
+        print(f"suite {suite}: folder {root} is absent (set {KNAPSACK_DIR_ENV}): no instances", file=sys.stderr)
+        return []
+    specs: list[InstanceSpec] = []
+    for name, pattern in KNAPSACK_SETS:
+        files = sorted((root / name).glob(pattern))
+        if quick:
+            # Smallest first: the item count leads both formats' files.
+            files = sorted(files, key=lambda f: (f.stat().st_size, f.name))[:_KNAPSACK_QUICK]
+        for f in files:
+            optimum = load_knapsack(f).optimum
+            specs.append(InstanceSpec(suite, f"{name}/{f.stem}", "knapsack",
+                                      {"path": str(f.resolve()), "set": name, "optimum": optimum}, True))
+    return specs
+
 
 def _traces() -> list[str]:
     return sorted(bundled_traces())
@@ -215,15 +273,22 @@ def suite_specs(suite: str, *, sizes: list[int] | None = None, seeds: int = 3, q
                     specs.append(InstanceSpec(suite, f"{rep}-J{J}-T{T}-s{s}", "problem",
                                               {"representation": rep, "objects": J, "slots": T, "seed": s,
                                                "trace": traces[s % len(traces)], "start": 120 * s}))
+    elif suite == "knapsack-sets":
+        specs = _knapsack_specs(suite, quick)
     else:
         raise SolveError(f"suite {suite!r} is not one of {', '.join(SUITES)}")
     return specs
 
 
-SUITES = ("l3gs", "pisinger", "stiff", "problems")
+SUITES = ("l3gs", "pisinger", "stiff", "problems", "knapsack-sets")
+#: What ``--suite all`` and the demo run: the built-in suites. ``knapsack-sets`` reads files from
+#: outside the project (141 of them, minutes to hours with the ILPs) and runs only when named.
+ALL_SUITES = ("l3gs", "pisinger", "stiff", "problems")
 
 _SINGLE_SLOT_METHODS = ["ilp/highs", "ilp/cbc", "ilp/cpsat", "ilp/scip", "lp/highs", "bb", "dp", "greedy",
                         "fptas:0.1", "fptas:0.01", "brute"]
+#: The knapsack-sets suite: the exact single-slot solver against three generic MILPs.
+_KNAPSACK_METHODS = ["bb", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
 _MULTI_SLOT_METHODS = ["ilp/highs", "ilp/highs/gap", "ilp/cpsat", "lp/highs", "rolling:bb", "rolling-future:bb",
                        "mpc:3", "mpc:6", "progressive", "slope", "static", "brute"]
 
@@ -255,6 +320,8 @@ def available(label: str) -> bool:
 def default_methods(spec: InstanceSpec, *, quick: bool = False) -> list[str]:
     """The methods a suite compares on a spec, limited to what is installed and sensible at its size."""
     params = spec.params
+    if spec.kind == "knapsack":
+        return [m for m in _KNAPSACK_METHODS if available(m)]
     J = params.get("objects", 8)
     T = params.get("slots", 1)
     chunks = J * params.get("items", params.get("layers", 4))

@@ -35,10 +35,10 @@ DEMO_SETTINGS = {"objects": 8, "layers": 4, "slots": 20, "seed": 0, "trace": "lu
 def _quick_bench(out_dir: Path) -> None:
     from l3gs_opt.bench.run import BenchTask, read_records, run_bench
     from l3gs_opt.bench.report import annotate, summarise, write_report
-    from l3gs_opt.bench.suites import SUITES, default_methods, suite_specs
+    from l3gs_opt.bench.suites import ALL_SUITES, default_methods, suite_specs
 
     bench_dir = out_dir / "bench"
-    tasks = [BenchTask(spec, m) for suite in SUITES for spec in suite_specs(suite, seeds=1, quick=True)
+    tasks = [BenchTask(spec, m) for suite in ALL_SUITES for spec in suite_specs(suite, seeds=1, quick=True)
              for m in default_methods(spec, quick=True)]
     print(f"1. quick benchmark: {len(tasks)} records (instance x method), 5 s per record at most")
     path = run_bench(tasks, bench_dir / "results.jsonl", time_limit_s=5.0, jobs=1, resume=True)

@@ -145,9 +145,9 @@ def _check_bench_args(args: argparse.Namespace) -> list[int] | None:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from l3gs_opt.bench.run import BenchError, BenchTask, run_bench
     from l3gs_opt.bench.report import write_report
-    from l3gs_opt.bench.suites import SUITES, default_methods, suite_specs
+    from l3gs_opt.bench.suites import ALL_SUITES, default_methods, suite_specs
 
-    suites = list(SUITES) if args.suite == "all" else [args.suite]
+    suites = list(ALL_SUITES) if args.suite == "all" else [args.suite]
     methods = _csv(args.methods)
     _check_methods(methods)
     sizes = _check_bench_args(args)
@@ -294,7 +294,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=_cmd_check)
 
     b = sub.add_parser("bench", help="run benchmark suites: one JSONL record per (instance, method)")
-    b.add_argument("--suite", default="all", choices=["all", "l3gs", "pisinger", "stiff", "problems"])
+    b.add_argument("--suite", default="all", choices=["all", "l3gs", "pisinger", "stiff", "problems", "knapsack-sets"],
+                   help="all: the built-in suites; knapsack-sets: the public 0-1 knapsack files with known optima "
+                        "($L3GS_KNAPSACK_DIR, else ../shared/data/reference/knapsack), named only")
     b.add_argument("--methods", default=None, help="comma-separated labels, e.g. ilp/highs,bb,fptas:0.01")
     b.add_argument("--sizes", default=None, type=lambda text: _csv(text, int),
                    help="comma-separated object counts J")

@@ -21,6 +21,11 @@ _STATUS = {pywraplp.Solver.OPTIMAL: Status.OPTIMAL, pywraplp.Solver.INFEASIBLE: 
            pywraplp.Solver.NOT_SOLVED: (Status.TIME_LIMIT, Status.ERROR)}
 
 
+#: SCIP's default value of infinity (its parameter numerics/infinity): BestBound() answers it when
+#: there is no bound yet.
+SCIP_INFINITY = 1e20
+
+
 def version() -> str:
     import ortools
 
@@ -67,11 +72,14 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     bound = None
     if relax:
         bound = objective.Value() if status is Status.OPTIMAL else None
-    elif has_solution or status is Status.TIME_LIMIT:
+    elif has_solution:
+        # Only with a solution: a run stopped before SCIP solved anything (result code NOT_SOLVED,
+        # e.g. a 1 ms limit on a loaded machine) answers BestBound() with 0, which is no bound.
         b = objective.BestBound()
         # SCIP's "no bound" is its infinity (1e20), which the caller would divide by the
-        # objective prescale into a plausible-looking number (3.8e14 on a 2x2 instance).
-        bound = float(b) if np.isfinite(b) and abs(b) < inf else None
+        # objective prescale into a plausible-looking number (3.8e14 on a 2x2 instance). OR-Tools'
+        # solver.infinity() is float inf since 9.15, so SCIP's own value is what to compare with.
+        bound = float(b) if np.isfinite(b) and abs(b) < min(inf, SCIP_INFINITY) else None
     return BackendResult(status=status, values=values, bound=bound, version=version() + f" {solver.SolverVersion()}",
                          message=f"SCIP result code {code}",
                          details={"nodes": int(solver.nodes()) if not relax else 0})
