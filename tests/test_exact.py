@@ -274,7 +274,6 @@ def test_price_branching_node_limit_is_labelled_time_limit() -> None:
 
 
 @pytest.mark.parametrize("kw,match", [
-    (dict(representation="separate"), "separate representation"),
     (dict(options=Options(budget="cumulative")), "cumulative"),
 ])
 def test_rejects_what_it_cannot_decompose(kw: dict, match: str) -> None:

@@ -22,8 +22,9 @@ multipliers.
 
 Options: ``availability="next_slot"`` shifts ``P`` by one slot, ``same_slot_layers=False`` sets
 ``d = 1``. The ``cumulative`` budget couples the slots, so there is no per-slot knapsack: such
-instances, and the separate representation (Problems II/IV, whose objective is a max over
-versions), are rejected with a :class:`~l3gs_opt.errors.SolveError`.
+instances are rejected with a :class:`~l3gs_opt.errors.SolveError`. The separate representation
+(Problems II/IV, whose objective is a max over versions) is not Problem A: ``exact`` solves it
+over per-object paths (:mod:`.separate`).
 """
 
 from __future__ import annotations
@@ -108,9 +109,8 @@ class GapData:
 def check_supported(instance: Instance, method: str = "exact") -> None:
     """Raise :class:`SolveError` for what the per-slot decomposition cannot express."""
     if not instance.layered:
-        raise SolveError(f"method {method!r}: the separate representation (Problem {instance.problem}) is not "
-                         "supported (its objective is a max over versions, not a sum over chunks); use method "
-                         "'ilp'")
+        raise SolveError(f"method {method!r}: Problem A is the layered form; the separate representation (Problem "
+                         f"{instance.problem}) is solved over per-object paths (solvers/exact/separate.py)")
     if instance.options.budget == "cumulative":
         raise SolveError(f"method {method!r}: budget 'cumulative' couples all slots, so the problem does not split "
                          "into per-slot knapsacks; use method 'ilp'")

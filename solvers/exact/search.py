@@ -39,9 +39,10 @@ representation; the bounds, columns, LNS and repair live in their own modules be
 A time limit returns the best schedule with a valid bound, status ``time_limit``; ``optimal``
 only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` says which bound
 the answer carries. Supported: layered instances (Problems I, III) with per-slot budgets, either
-availability, same-slot or strict layers. Rejected with a :class:`~l3gs_opt.errors.SolveError`:
-the separate representation (Problems II/IV) and the ``cumulative`` budget (see
-:func:`.lagrange.check_supported`); use ``ilp`` for those.
+availability, same-slot or strict layers. Separate instances (Problems II/IV) go to
+:mod:`.separate` (per-object paths: path pricing, branch-and-price beside a reduced HiGHS model).
+Rejected with a :class:`~l3gs_opt.errors.SolveError`: the ``cumulative`` budget for layered
+instances (see :func:`.lagrange.check_supported`); use ``ilp`` or ``link-dp`` for those.
 
 Signed layer utilities (``dU < 0``) need nothing special: Problem A's profits ``P[i,t]`` are then
 signed too, the Lagrangian bound holds for any sign (each slot's knapsack takes only positive
@@ -55,7 +56,6 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
-import sys
 import threading
 import time
 from typing import Any, Mapping
@@ -67,6 +67,7 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
 from .colgen import ColumnPool, column_generation
+from .sides import run_sides
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
 from .repair import level_repair
@@ -113,10 +114,6 @@ MIP_MARGIN_S, MIP_MARGIN_PER_PAIR_S = 1.0, 5e-5
 #: J=20 the MIP proves s1-s3 and branch-and-price s4. Large instances (column generation skipped
 #: at the root) run ``mip`` only.
 BRANCHING = ("both", "mip", "price")
-#: GIL switch interval (s) while both sides run: HiGHS's interrupt callbacks need the GIL, and at
-#: Python's default 5 ms a busy pricing thread slowed a HiGHS MIP ten-fold (2,755 nodes in 1.7 s
-#: alone, 257 in 6 s); at 0.1 ms it took 2.7 s.
-SWITCH_INTERVAL_S = 1e-4
 #: A node is closed when its bound is within this relative distance of the incumbent: below
 #: GAP_TOL so that a closed tree certifies an optimal gap.
 CLOSE_TOL = 0.1 * GAP_TOL
@@ -439,9 +436,16 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
     Raises
     ------
     SolveError
-        ``slot`` given, separate representation, cumulative budget.
+        ``slot`` given, cumulative budget (layered). Separate instances (Problems II/IV) go to
+        :func:`.separate.solve_separate`.
     """
     started = time.perf_counter()
+    if not instance.layered:
+        # Problems II/IV: branch-and-price over per-object paths (solvers/exact/separate.py).
+        from .separate import solve_separate
+
+        return solve_separate(instance, slot=slot, time_limit_s=time_limit_s, heuristics=heuristics,
+                              max_nodes=max_nodes, branching=branching)
     if slot is not None:
         raise SolveError("method 'exact' schedules the whole horizon: slot does not apply (use 'bb' for one slot)")
     if branching not in BRANCHING:
@@ -627,22 +631,8 @@ class _Search:
         self.found: list[np.ndarray] = []     # schedules the MIP side found, handed to the main thread
         self.stop = threading.Event()          # set when one side has closed the gap (or at the end)
         self.mip: dict[str, Any] = {"bound": math.inf, "kind": "", "hit_limit": False, "runs": []}
-        worker, switch_interval = None, sys.getswitchinterval()
-        if use_mip and use_price:
-            worker = threading.Thread(target=self.mip_side, args=(self.z, self.assign.copy()), name="exact-mip",
-                                      daemon=True)
-            sys.setswitchinterval(min(switch_interval, SWITCH_INTERVAL_S))
-            worker.start()
-        elif use_mip:
-            self.mip_side(self.z, self.assign)
-        try:
-            if use_price:
-                self.price_side()
-        finally:   # the MIP thread never outlives the call
-            if worker is not None:
-                self.stop.set()
-                worker.join()
-                sys.setswitchinterval(switch_interval)
+        run_sides(self.price_side if use_price else None,
+                  (lambda: self.mip_side(self.z, self.assign.copy())) if use_mip else None, self.stop, name="exact-mip")
         mip = self.mip
         if "error" in mip:
             raise mip["error"]
