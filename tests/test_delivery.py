@@ -312,6 +312,24 @@ def test_bucket_with_a_fake_clock():
     assert late.reserve(500) == pytest.approx(0.5)
 
 
+def test_session_age_lines_the_trace_up_with_the_client():
+    """A session started 0.5 s ago on the client's clock: its slot boundaries are the client's
+    (slot 1's rate from 0.5 s after creation), and the half second before is gone but for a burst."""
+    from l3gs_opt.delivery.server import _age
+
+    now = [100.0]
+    sh = TraceShaper([1000, 3000], burst_bytes=100, clock=lambda: now[0])
+    b = sh.session("a", age_s=0.5)
+    assert b.reserve(100) == 0.0                                        # one burst saved, not 500 bytes
+    assert b.reserve(400) == pytest.approx(0.4)                         # 400 more at 1000 B/s
+    now[0] = 100.5                                                      # the client's slot 1 starts now
+    # The debt of 400 is repaid by 1.0 s, one burst (100) saved: 200 of the 300 wait, at 3000 B/s.
+    assert b.piece_bytes() == 100 and b.reserve(300) == pytest.approx(200 / 3000)
+    with pytest.raises(ShapingError, match="age_s"):
+        sh.session("b", age_s=-1.0)
+    assert [_age(v) for v in (None, "0.25", "-1", "nan", "1e9", "x" * 20, "oops")] == [0.0, 0.25, 0, 0, 0, 0, 0]
+
+
 def test_piece_follows_the_current_slot_rate():
     """10 ms of the current slot's rate, clamped to [MIN_PIECE_BYTES, burst]; the trace repeats and a
     resumed session counts from its start slot."""

@@ -198,6 +198,7 @@ class HttpLink:
         self.units: list[tuple[StreamChunk, ...]] = []
         self.store: Optional[_Store] = None
         self.trace_slot = 0                    # the trace slot the session is in (sent to the server)
+        self.slot_started: Optional[float] = None   # time.monotonic() at its start
         self.retry_s = float(retry_s)
         self.retries = 0                       # transfers retried after a failed connection, this slot
         self.queue: deque = deque()            # [unit, bytes of it held], the head being received
@@ -240,8 +241,11 @@ class HttpLink:
             headers["Range"] = f"bytes={rng[0]}-{rng[1] - 1}"
         if name == self.client:
             # Read by the server on a session's first request only: after a server restart the new
-            # session's trace clock starts at the slot the client is in, not at the run's start.
+            # session's trace clock starts at the slot the client is in, not at the run's start,
+            # and as long ago as this slot began on the client's clock.
             headers["X-L3gs-Trace-Slot"] = str(self.trace_slot)
+            if self.slot_started is not None:
+                headers["X-L3gs-Session-Age"] = f"{max(0.0, time.monotonic() - self.slot_started):.6f}"
         return self.session.get(f"{self.url}/{path}", headers=headers)
 
     async def _read_all(self, path: str, rng: Optional[tuple[int, int]], name: str) -> bytes:
@@ -274,10 +278,11 @@ class HttpLink:
             self._task = asyncio.get_running_loop().create_task(self._work())
         self._call(go())
 
-    def submit(self, ids: Sequence[int], *, trace_slot: int) -> None:
-        """Queue the slot's requests (the session now in trace slot ``trace_slot``) behind the unit in flight."""
+    def submit(self, ids: Sequence[int], *, trace_slot: int, slot_started: Optional[float] = None) -> None:
+        """Queue the slot's requests (the session now in trace slot ``trace_slot``, which began at
+        ``slot_started`` on ``time.monotonic()``) behind the unit in flight."""
         async def go():
-            self.trace_slot = trace_slot
+            self.trace_slot, self.slot_started = trace_slot, slot_started
             for k in ids:
                 self.queue.append([int(k), 0])
                 self.fresh.add(int(k))
@@ -632,7 +637,7 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             if t_zero is None:   # the slots' wall clock starts when the first requests go out
                 t_zero = now
             slot_start = t_zero + (t - cl.first_slot) * config.slot_s
-            link.submit(ids, trace_slot=start + t)
+            link.submit(ids, trace_slot=start + t, slot_started=slot_start)
             late = max(0.0, now - slot_start)
             if pending is not None:
                 draw()

@@ -35,7 +35,8 @@ Pacing
 With a trace (:mod:`l3gs_opt.delivery.shaping`) the bodies of file responses are written in pieces
 no larger than the shaper's burst, each after its session's bucket allows it. A session is named
 by the request header ``X-L3gs-Client`` (any token up to 64 characters); ``X-L3gs-Trace-Slot: t``
-on its first request starts its trace at slot ``t`` (a resumed client). Requests without a name are
+on its first request starts its trace at slot ``t`` (a resumed client), and ``X-L3gs-Session-Age: s``
+that many seconds ago (when the client's slot clock started). Requests without a name are
 paced per TCP connection when ``shape_anonymous`` is set (the default), else not paced (a client's
 side channel, e.g. the catalogue fetch of :mod:`l3gs_opt.delivery.fetch`). ``index.json`` is never
 paced (the simulator, too, does not charge the manifest fetch to the trace).
@@ -50,6 +51,7 @@ import asyncio
 import dataclasses
 import hashlib
 import logging
+import math
 import os
 import re
 import threading
@@ -58,7 +60,7 @@ from typing import Optional
 
 from aiohttp import web
 
-from l3gs_opt.delivery.shaping import TraceShaper, trace_shaper
+from l3gs_opt.delivery.shaping import MAX_AGE_S, TraceShaper, trace_shaper
 from l3gs_opt.delivery.tables import TABLES_NAME, read_tables
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.scene.stream_index import INDEX_NAME, read_stream
@@ -68,6 +70,21 @@ __all__ = ["ServerError", "ByteRange", "parse_range", "make_app", "start_server"
 
 CLIENT_HEADER = "X-L3gs-Client"
 TRACE_SLOT_HEADER = "X-L3gs-Trace-Slot"
+#: On a session's first request: seconds since the client's slot clock started (its first request
+#: reaches the server a little later), so that the server's trace slots line up with its cuts.
+SESSION_AGE_HEADER = "X-L3gs-Session-Age"
+
+
+def _age(value: Optional[str]) -> float:
+    """A session age header as seconds in [0, MAX_AGE_S]; anything else is 0 (not an error: the
+    pacing is then only a few milliseconds off)."""
+    if value is None or len(value) > 16:
+        return 0.0
+    try:
+        age = float(value)
+    except ValueError:
+        return 0.0
+    return age if math.isfinite(age) and 0.0 <= age <= MAX_AGE_S else 0.0
 #: Largest piece written at once without pacing (bytes): big enough for speed, small enough for memory.
 PIECE_BYTES = 256 * 1024
 _CLIENT_NAME = re.compile(r"^[A-Za-z0-9._:-]{1,64}$")
@@ -224,7 +241,8 @@ def _bucket(request: web.Request, shaper: Optional[TraceShaper], anonymous: bool
     start = request.headers.get(TRACE_SLOT_HEADER, "0")
     start_slot = int(start) if start.isdigit() and len(start) <= 9 else 0
     if name is not None and _CLIENT_NAME.match(name):
-        return shaper.session(("client", name), start_slot=start_slot)
+        return shaper.session(("client", name), start_slot=start_slot,
+                              age_s=_age(request.headers.get(SESSION_AGE_HEADER)))
     if not anonymous:
         return None
     transport = request.transport

@@ -46,7 +46,7 @@ from l3gs_opt.errors import L3gsError
 from l3gs_opt.traces.bandwidth import MAX_SLOT_BYTES
 
 __all__ = ["ShapingError", "TraceShaper", "SessionBucket", "MIN_BURST_BYTES", "MIN_PIECE_BYTES", "BURST_S",
-           "MAX_SESSIONS",
+           "MAX_SESSIONS", "MAX_AGE_S",
            "trace_shaper"]
 
 #: Smallest burst (bytes): two Ethernet frames' payload, so slow traces do not pay a write per few bytes.
@@ -55,6 +55,9 @@ MIN_BURST_BYTES = 2048
 MIN_PIECE_BYTES = 256
 #: Default burst as time at the trace's fastest rate (seconds): 1 % of a 1 s slot.
 BURST_S = 0.01
+#: Largest session age a client may claim (seconds): its first request cannot come later than this
+#: after its clock started.
+MAX_AGE_S = 10.0
 #: Sessions remembered at once; the least recently used is forgotten first (it restarts the trace).
 MAX_SESSIONS = 4096
 
@@ -142,11 +145,13 @@ class TraceShaper:
         frac = (rest - self._cum[i]) / self.bytes_per_slot[i]
         return (laps * T + i + frac) * self.slot_s
 
-    def session(self, key: Hashable, *, start_slot: int = 0) -> "SessionBucket":
-        """The bucket of session ``key``, created (its trace clock started at slot ``start_slot``) on first use."""
+    def session(self, key: Hashable, *, start_slot: int = 0, age_s: float = 0.0) -> "SessionBucket":
+        """The bucket of session ``key``, created on first use: its trace clock at slot
+        ``start_slot``, started ``age_s`` seconds ago (the client's clock started before its first
+        request arrived: 0 <= ``age_s`` <= :data:`MAX_AGE_S`)."""
         bucket = self._sessions.get(key)
         if bucket is None:
-            bucket = SessionBucket(self, start_slot=start_slot)
+            bucket = SessionBucket(self, start_slot=start_slot, age_s=age_s)
             self._sessions[key] = bucket
             while len(self._sessions) > MAX_SESSIONS:
                 self._sessions.popitem(last=False)
@@ -158,16 +163,20 @@ class TraceShaper:
 class SessionBucket:
     """The token bucket of one session (see the module docstring).
 
-    The bucket starts empty; its clock starts at its creation, at the start of slot ``start_slot``
-    of the trace (a client resuming at slot t asks for it, so server and client agree on which
-    slot is which).
+    The bucket starts empty; its clock starts at its creation (less ``age_s``: when the client's
+    own clock started), at the start of slot ``start_slot`` of the trace (a client resuming at slot
+    t asks for it, so server and client agree on which slot is which).
     """
 
-    def __init__(self, shaper: TraceShaper, *, start_slot: int = 0):
+    def __init__(self, shaper: TraceShaper, *, start_slot: int = 0, age_s: float = 0.0):
         if isinstance(start_slot, bool) or not isinstance(start_slot, (int, np.integer)) or start_slot < 0:
             raise ShapingError("start_slot", f"{start_slot!r}: must be a whole number >= 0")
+        if isinstance(age_s, bool) or not isinstance(age_s, (int, float)) or not 0.0 <= age_s <= MAX_AGE_S:
+            raise ShapingError("age_s", f"{age_s!r}: must be seconds in [0, {MAX_AGE_S}]")
         self.shaper = shaper
-        self.start = shaper.clock()
+        # The trace's time began when the client's did: the link time before the first request
+        # arrived is gone (the bucket starts empty), and later slots line up with the client's.
+        self.start = shaper.clock() - float(age_s)
         self.offset_s = int(start_slot) * shaper.slot_s
         self._offset_bytes = shaper.cumulative_bytes(self.offset_s)
         self._at = 0.0             # session seconds of the last update
