@@ -374,7 +374,8 @@ def test_lp_neighbourhood_bands_are_nested(seed: int) -> None:
 
 def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
     """With RESTART_SHRINK = 1 HiGHS is restarted at every improving schedule it finds (no start
-    heuristics, one-slot windows: the primal side leaves it some to find): the answers still equal
+    heuristics, one-slot windows: the primal side leaves it some to find; the MIP side alone, so that
+    no race with branch-and-price decides whether it gets to find one): the answers still equal
     the core's ILP, and at least one run restarted."""
     import l3gs_opt.solvers.exact.search as exact_mod
 
@@ -383,7 +384,7 @@ def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
     for seed in range(16):
         inst = random_instance(np.random.default_rng(6000 + seed), T=10, J=8, L=3, tight=0.25)
         ref = solve(inst, "ilp")
-        sol = solve_exact(inst, heuristics=(), lns_width=1)
+        sol = solve_exact(inst, heuristics=(), lns_width=1, branching="mip")
         _check(inst, sol)
         assert sol.status is Status.OPTIMAL
         assert rel_close(sol.objective, ref.objective)

@@ -40,6 +40,7 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import presolve
 
 from .. import _mckp
+from . import pricing
 
 __all__ = ["GapData", "gap_data", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
            "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
@@ -237,18 +238,29 @@ def reduced_profits(data: GapData, mult: Multipliers) -> np.ndarray:
     return np.where(data.allowed, red, -np.inf)
 
 
+#: Largest pricing knapsack the compiled depth-first search takes first (items with a positive
+#: reduced profit that fit): beyond it, node counts can grow past its limit.
+PRICING_MAX_ITEMS = 400
+
+
 def knapsack(cost: np.ndarray, value: np.ndarray, capacity: int, *,
              time_limit_s: float | None = None) -> tuple[np.ndarray, float, bool]:
-    """0-1 knapsack by the single-slot branch-and-bound: (chosen positions, upper bound, optimal).
+    """0-1 knapsack: (chosen positions, upper bound, optimal).
 
-    Items with value <= 0 or cost > capacity are never chosen. The bound is the solver's
-    (exact optimum plus its relative slack when optimal).
+    Up to :data:`PRICING_MAX_ITEMS` items, the compiled depth-first search of :mod:`.pricing`
+    (its optimum; the callers add the round-off slack); when it is absent or gives up, the
+    single-slot branch-and-bound (its bound: the optimum plus its relative slack when optimal).
+    Items with value <= 0 or cost > capacity are never chosen.
     """
     take = np.nonzero((value > 0) & (cost <= capacity))[0]
     if len(take) == 0 or capacity <= 0:
         return np.zeros(0, dtype=np.int64), 0.0, True
     if int(cost[take].sum()) <= capacity:
         return take, math.fsum(value[take].tolist()), True
+    if pricing.available() and len(take) <= PRICING_MAX_ITEMS:
+        chosen, best, done = pricing.solve_kp01_float(cost[take], value[take], int(capacity))
+        if done:   # exact up to float round-off, which the callers' slack covers
+            return take[chosen], best, True
     table = _mckp.build_table(layered=False, cost=cost[take, None], gain=value[take, None],
                               held=np.zeros((len(take), 1), bool), budget=int(capacity))
     res = _mckp.branch_and_bound(table, time_limit_s=time_limit_s)
