@@ -68,6 +68,7 @@ from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
 
 from .colgen import ColumnPool, column_generation
 from .sides import run_sides
+from .starts import check_starts, run_start
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
 from .repair import level_repair
@@ -77,8 +78,6 @@ __all__ = ["solve_exact", "local_search", "round_schedule", "reduced_cost_fixing
 
 #: Heuristics the primal side starts from (``mpc:3`` is added when J * L <= MPC_MAX_CHUNKS).
 START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb")
-#: Every start heuristic the ``heuristics`` option may name.
-START_NAMES = (*START_HEURISTICS, "mpc:3")
 MPC_MAX_CHUNKS = 100
 #: Root column generation runs only when Problem A has at most this many (chunk, slot) pairs:
 #: above it (J=200, T=60: 48,000 pairs) one master round takes seconds and the 60 s goes to the
@@ -382,33 +381,17 @@ def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.nd
 
 # -- the solver ---------------------------------------------------------------------------------
 
-def _run_start(name: str, instance: Instance, left: float | None) -> Solution:
-    """Run start heuristic ``name`` (one of :data:`START_NAMES`) directly, without its LP bound. Not
-    through the method table: the table names ``exact`` itself."""
-    from .. import heuristics, rolling
-
-    if name == "slope":
-        return heuristics.solve_slope(instance, time_limit_s=left, with_bound=False)
-    if name in ("rolling:bb", "rolling-future:bb"):
-        return rolling.solve_rolling(instance, "bb", future=name.startswith("rolling-future"), time_limit_s=left,
-                                     with_bound=False)
-    if name == "mpc:3":
-        return rolling.solve_mpc(instance, 3, time_limit_s=left, with_bound=False)
-    raise SolveError(f"method 'exact': start heuristic {name!r} is not one of {', '.join(START_NAMES)}")
-
-
 def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadline: float | None
            ) -> tuple[np.ndarray, str, dict[str, float]]:
     for name in heuristics:
-        if name not in START_NAMES:
-            raise SolveError(f"method 'exact': start heuristic {name!r} is not one of {', '.join(START_NAMES)}")
+        check_starts([name])
     best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
     best_val = assignment_value(data, best)
     for name in heuristics:
         left = None if deadline is None else deadline - time.perf_counter()
         if left is not None and left <= 0:
             break
-        sol = _run_start(name, instance, left)
+        sol = run_start(name, instance, left)
         assign = data.assignment(instance, sol.arrivals)
         if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
             continue

@@ -54,12 +54,12 @@ from .separate_data import (Path, lagrangian_bound, path_bytes, path_value, pric
 from .separate_master import PathPool, path_generation
 from .separate_mip import fixed_mask, reduced_mip
 from .sides import run_sides
+from .starts import check_starts, run_start
 
-__all__ = ["solve_separate", "START_HEURISTICS", "START_NAMES"]
+__all__ = ["solve_separate", "START_HEURISTICS"]
 
 #: Heuristics the primal side starts from (``mpc:3`` is added when J * L <= MPC_MAX_CHUNKS).
 START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb", "static", "progressive")
-START_NAMES = (*START_HEURISTICS, "mpc:3")
 MPC_MAX_CHUNKS = 100
 #: Share of the time limit the start heuristics may use, and of the time left for the root column
 #: generation and for the restricted-master MIP.
@@ -81,21 +81,6 @@ BRANCHING = ("both", "mip", "price")
 MIP_MARGIN_S = 1.0
 
 
-def _run_start(name: str, instance: Instance, left: float | None) -> Solution:
-    from .. import heuristics, rolling
-
-    if name in ("slope", "static", "progressive"):
-        fn = {"slope": heuristics.solve_slope, "static": heuristics.solve_static,
-              "progressive": heuristics.solve_progressive}[name]
-        return fn(instance, time_limit_s=left, with_bound=False)
-    if name in ("rolling:bb", "rolling-future:bb"):
-        return rolling.solve_rolling(instance, "bb", future=name.startswith("rolling-future"), time_limit_s=left,
-                                     with_bound=False)
-    if name == "mpc:3":
-        return rolling.solve_mpc(instance, 3, time_limit_s=left, with_bound=False)
-    raise SolveError(f"method 'exact': start heuristic {name!r} is not one of {', '.join(START_NAMES)}")
-
-
 def solve_separate(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
                    heuristics: tuple[str, ...] | None = None, max_nodes: int | None = None,
                    branching: str = "both", **_ignored: Any) -> Solution:
@@ -108,7 +93,7 @@ def solve_separate(instance: Instance, *, slot: int | None = None, time_limit_s:
     time_limit_s : float, optional
         Wall-clock seconds; the answer then carries the best schedule and a valid bound.
     heuristics : tuple of str, optional
-        Start heuristics (names of :data:`START_NAMES`; default :data:`START_HEURISTICS`, plus
+        Start heuristics (names of :data:`.starts.START_NAMES`; default :data:`START_HEURISTICS`, plus
         ``mpc:3`` on scenes of at most ``MPC_MAX_CHUNKS`` versions).
     max_nodes : int, optional
         Stop branching after this many nodes (status ``time_limit`` unless proven).
@@ -135,9 +120,7 @@ def solve_separate(instance: Instance, *, slot: int | None = None, time_limit_s:
     if instance.layered:
         raise SolveError("solve_separate: separate instances only (Problems II and IV)")
     if heuristics is not None:
-        for name in heuristics:
-            if name not in START_NAMES:
-                raise SolveError(f"method 'exact': start heuristic {name!r} is not one of {', '.join(START_NAMES)}")
+        check_starts(heuristics)
     search = _PathSearch(instance, started=started, time_limit_s=time_limit_s, max_nodes=max_nodes,
                          branching=branching)
     search.start(heuristics)
@@ -311,7 +294,7 @@ class _PathSearch:
             left = None if h_deadline is None else h_deadline - time.perf_counter()
             if left is not None and left <= 0:
                 break
-            sol = _run_start(name, inst, left)
+            sol = run_start(name, inst, left)
             paths = data.paths_of(sol.arrivals)
             if not schedule_feasible(data, paths):    # never expected: heuristics are feasible
                 continue
@@ -468,11 +451,8 @@ class _PathSearch:
                 heapq.heappush(heap, (-node_bound, next(counter), child_allowed, child_must, res.pi, None))
             self.trace.append((self.now(), self.z, min(self.mip["bound"], max(self.z, -heap[0][0], unresolved))))
         open_bound = max([-h[0] for h in heap if not self.closed(-h[0])] + [unresolved], default=-math.inf)
-        if open_bound == -math.inf and not self.stop.is_set():
-            self.stop.set()   # the tree is closed: the MIP side may stop
-        elif open_bound == -math.inf:
-            # Stopped by the MIP side with nothing open here either: the tree bound is the incumbent.
-            pass
+        if open_bound == -math.inf:
+            self.stop.set()   # the tree is closed (the bound is the incumbent): the MIP side may stop
         tree_bound = max(self.z, open_bound)
         if tree_bound < self.bound:
             self.bound = tree_bound

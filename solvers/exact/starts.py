@@ -1,0 +1,40 @@
+"""The heuristics ``exact`` starts from, for both searches (Problems I/III and II/IV).
+
+Run directly, without their LP bound, not through the method table: the table names ``exact``
+itself.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import Solution
+
+__all__ = ["START_NAMES", "check_starts", "run_start"]
+
+#: Every start heuristic ``exact``'s ``heuristics`` option may name.
+START_NAMES = ("rolling-future:bb", "slope", "rolling:bb", "static", "progressive", "mpc:3")
+
+
+def check_starts(names: Iterable[str]) -> None:
+    """Refuse a name not in :data:`START_NAMES` (one :class:`SolveError` naming it)."""
+    for name in names:
+        if name not in START_NAMES:
+            raise SolveError(f"method 'exact': start heuristic {name!r} is not one of {', '.join(START_NAMES)}")
+
+
+def run_start(name: str, instance: Instance, left: float | None) -> Solution:
+    """Run start heuristic ``name`` on ``instance`` with ``left`` seconds (None: no limit)."""
+    from .. import heuristics, rolling
+
+    check_starts([name])
+    if name in ("slope", "static", "progressive"):
+        fn = {"slope": heuristics.solve_slope, "static": heuristics.solve_static,
+              "progressive": heuristics.solve_progressive}[name]
+        return fn(instance, time_limit_s=left, with_bound=False)
+    if name in ("rolling:bb", "rolling-future:bb"):
+        return rolling.solve_rolling(instance, "bb", future=name.startswith("rolling-future"), time_limit_s=left,
+                                     with_bound=False)
+    return rolling.solve_mpc(instance, 3, time_limit_s=left, with_bound=False)
