@@ -167,29 +167,16 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
     value[0] = 0.0                                             # every object at its held state
     back_state = np.full(n_states, -1, np.int64)
     back_chunk = np.full((n_states, 2), -1, np.int64)
-    order = np.argsort(count, kind="stable")
-    bounds = np.searchsorted(count[order], np.arange(count.max() + 2))
-    for k in range(1, int(count.max()) + 1):
-        states = order[bounds[k]:bounds[k + 1]]
-        states = states[fits[states]]
-        if states.size == 0:
-            continue
+    for states, moves in _moves_by_count(objects, local, strides, count, fits):
         t_of = slot[states]
-        for j, (_, _, trans) in enumerate(objects):
-            loc = local[j][states]
-            for a, b, l, gain in trans:
-                sel = loc == b
-                if not sel.any():
-                    continue
-                gs = states[sel]
-                prev = gs - (b - a) * strides[j]
-                cand = value[prev] + gain[t_of[sel]]
-                better = cand > value[gs]
-                if better.any():
-                    upd = gs[better]
-                    value[upd] = cand[better]
-                    back_state[upd] = prev[better]
-                    back_chunk[upd] = (j, l)
+        for j, l, gain, sel, gs, prev in moves:
+            cand = value[prev] + gain[t_of[sel]]
+            better = cand > value[gs]
+            if better.any():
+                upd = gs[better]
+                value[upd] = cand[better]
+                back_state[upd] = prev[better]
+                back_chunk[upd] = (j, l)
     best = int(np.argmax(np.where(fits, value, -np.inf)))
     arrivals = []
     s = best
@@ -198,6 +185,28 @@ def solve_link_dp(instance: Instance, *, max_states: int = MAX_STATES, time_limi
         arrivals.append((j, l, int(slot[s])))
         s = int(back_state[s])
     return _finish(inst, arrivals, n_states, float(value[best]), t0)
+
+
+def _moves_by_count(objects: list, local: list, strides: np.ndarray, count: np.ndarray, fits: np.ndarray):
+    """Both DPs' sweep: for k = 1, 2, ... chunks delivered, the states of k chunks whose bytes fit
+    the horizon, and per chunk (j, l) that can be their last: ``(j, l, gain, sel, states, before)``
+    (``sel`` the mask over the k-chunk states, ``before`` the states of k - 1 chunks they come from)."""
+    order = np.argsort(count, kind="stable")
+    bounds = np.searchsorted(count[order], np.arange(count.max() + 2))
+    for k in range(1, int(count.max()) + 1):
+        states = order[bounds[k]:bounds[k + 1]]
+        states = states[fits[states]]
+        if states.size == 0:
+            continue
+        moves = []
+        for j, (_, _, trans) in enumerate(objects):
+            loc = local[j][states]
+            for a, b, l, gain in trans:
+                sel = loc == b
+                if sel.any():
+                    gs = states[sel]
+                    moves.append((j, l, gain, sel, gs, gs - (b - a) * strides[j]))
+        yield states, moves
 
 
 def _finish(inst: Instance, arrivals: list, n_states: int, dp_value: float, t0: float) -> Solution:
@@ -225,27 +234,15 @@ def _signed_dp(inst: Instance, objects: list, local: list, strides: np.ndarray, 
     direct = np.full((n, T), -np.inf)
     code = np.full((n, T), -1, np.int64)
     before = np.arange(T)[None, :] < slot[:, None]             # slots too early for the state's bytes
-    order = np.argsort(count, kind="stable")
-    bounds = np.searchsorted(count[order], np.arange(count.max() + 2))
-    for k in range(1, int(count.max()) + 1):
-        states = order[bounds[k]:bounds[k + 1]]
-        states = states[fits[states]]
-        if states.size == 0:
-            continue
-        for j, (_, _, trans) in enumerate(objects):
-            loc = local[j][states]
-            for a, b, l, gain in trans:
-                sel = loc == b
-                if not sel.any():
-                    continue
-                gs = states[sel]
-                cand = W[gs - (b - a) * strides[j]] + gain[None, :]
-                cand[before[gs]] = -np.inf
-                better = cand > direct[gs]
-                if better.any():
-                    rows, cols = np.nonzero(better)
-                    direct[gs[rows], cols] = cand[rows, cols]
-                    code[gs[rows], cols] = j * L + l
+    for states, moves in _moves_by_count(objects, local, strides, count, fits):
+        for j, l, gain, _, gs, prev in moves:
+            cand = W[prev] + gain[None, :]
+            cand[before[gs]] = -np.inf
+            better = cand > direct[gs]
+            if better.any():
+                rows, cols = np.nonzero(better)
+                direct[gs[rows], cols] = cand[rows, cols]
+                code[gs[rows], cols] = j * L + l
         W[states] = np.maximum.accumulate(direct[states], axis=1)
     best = int(np.argmax(np.where(fits, W[:, T - 1], -np.inf)))
     value = float(W[best, T - 1])
