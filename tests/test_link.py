@@ -11,26 +11,7 @@ from l3gs_opt.simulator.link import Link, LinkError, max_min_shares, split_bytes
 
 def _reference(bandwidth, budget, request_lists):
     """One byte at a time: the slow, obvious model of the link (what the fast one must match)."""
-    flight: list[list] = []      # [key, size, delivered]
-    bank = 0
-    out = []
-    for t, requests in enumerate(request_lists):
-        queue = flight + [[k, s, 0] for k, s in requests]
-        cap = bandwidth[t] + bank
-        delivered: dict = {}
-        used = 0
-        for _ in range(cap):
-            head = next((q for q in queue if q[2] < q[1]), None)
-            if head is None:
-                break
-            head[2] += 1
-            used += 1
-            delivered[head[0]] = delivered.get(head[0], 0) + 1
-        flight = [q for q in queue if 0 < q[2] < q[1]]
-        idle = cap - used
-        bank = idle if budget == "cumulative" else 0
-        out.append((delivered, [(q[0], q[1] - q[2]) for q in flight], idle, bank))
-    return out
+    return _reference_with_head(bandwidth, budget, request_lists, [0] * len(request_lists))
 
 
 @pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
