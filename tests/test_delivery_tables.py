@@ -228,3 +228,17 @@ def test_decision_time_costs_link_time(world):
     with pytest.raises(FetchError, match="decision_s"):
         fetch("http://127.0.0.1:9", str(world["trace"]), world["log"], "l3gs", None, slots=1,
               config=SimConfig(decision_s=0.1))
+
+
+def test_reload_scene_refuses_a_bundle_that_moves_rows(world, tmp_path):
+    """The fetch client's scene is reloaded as bytes arrive; a bundle whose rows sit in other objects
+    or levels (not the one the catalogues were built on) is refused by name."""
+    from l3gs_opt.simulator.simulation import SimConfig, Simulation, SimulationError
+
+    sim = Simulation(stream_bundle(read_stream(world["plain"])), world["log"], list(TRACE),
+                     config=SimConfig(width=32, height=24, samples_per_slot=1))
+    sim.reload_scene(stream_bundle(read_stream(world["plain"])))           # the same rows: accepted
+    other = make_scene(900, objects=3, sh_degree=1, seed=1)
+    write_bundle(tmp_path / "b", [other.subset(np.arange(0, 300)), other.subset(np.arange(300, 900))], variant="sort")
+    with pytest.raises(SimulationError, match="bundle: a reloaded bundle moved rows"):
+        sim.reload_scene(stream_bundle(read_stream(export_stream(tmp_path / "b", tmp_path / "s").parent)))

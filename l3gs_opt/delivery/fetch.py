@@ -436,18 +436,6 @@ class _ReceivedBundle(Bundle):
         return rec
 
 
-def _refresh(sim, bundle: "_ReceivedBundle") -> None:
-    """Rebuild the client's scene from the bytes received (object and level of every row unchanged)."""
-    from l3gs_opt.simulator.catalog import _base_scene
-
-    base = _base_scene(bundle)
-    old = sim._base
-    if not (np.array_equal(base[1], old[1]) and np.array_equal(base[2], old[2])):
-        raise FetchError("chunks", "the received records moved rows between objects or levels")
-    sim._base, sim.scene = base, base[0]
-    sim._fingerprints.clear()
-
-
 class _FetchClient(Client):
     """The simulator's client with this slot's fetch facts in its records."""
 
@@ -614,7 +602,7 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
                 tr = cl.link.in_flight[0]
                 carried = (int(tr.key), int(tr.delivered))
         if tables is not None:
-            _refresh(sim, bundle)
+            sim.reload_scene(bundle)
         link.begin(units, store, trace_slot=start + cl.first_slot, carried=carried)
         # The references the pictures are scored against, before the clock starts (evaluation work;
         # the first render also compiles the renderer, which would make slot 0's cut late).
@@ -655,7 +643,7 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             _check_received(index, fetched if catalogue == "full" else None, store, units, list(d.delivered),
                             cl.complete)
             if tables is not None and d.delivered:
-                _refresh(sim, bundle)
+                sim.reload_scene(bundle)
             cl.fetch_info = {"bytes_received": measured, "late_s": round(late, 6), "cut_late_s": round(cut_late, 6),
                              "retries": retries}
             pending = cl.end_slot(defer=True)

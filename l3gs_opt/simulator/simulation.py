@@ -236,6 +236,22 @@ class Simulation:
         self._distill: tuple | None = None
 
     # -- per-slot inputs shared by all methods -------------------------------------------
+    def reload_scene(self, bundle) -> None:
+        """Take the splats of ``bundle`` from now on (a client whose bundle fills as bytes arrive,
+        :mod:`l3gs_opt.delivery.fetch`): the rows, their objects and levels must stay the ones the
+        catalogues were built on; renders are keyed by the new content.
+
+        Raises
+        ------
+        SimulationError
+            ``bundle`` puts a row in another object or level.
+        """
+        base = _base_scene(bundle)
+        if not (np.array_equal(base[1], self._base[1]) and np.array_equal(base[2], self._base[2])):
+            raise SimulationError("bundle", "a reloaded bundle moved rows between objects or levels")
+        self._base, self.scene = base, base[0]
+        self._fingerprints.clear()
+
     def catalog(self, view: str) -> Catalog:
         if view not in self._catalogs:
             self._catalogs[view] = build_catalog(self.bundle, view, base=self._base)
