@@ -238,7 +238,7 @@ def test_reload_scene_refuses_a_bundle_that_moves_rows(world, tmp_path):
     sim = Simulation(stream_bundle(read_stream(world["plain"])), world["log"], list(TRACE),
                      config=SimConfig(width=32, height=24, samples_per_slot=1))
     sim.reload_scene(stream_bundle(read_stream(world["plain"])))           # the same rows: accepted
-    other = make_scene(900, objects=3, sh_degree=1, seed=1)
+    other = make_scene(1000, objects=3, sh_degree=1, seed=1)
     write_bundle(tmp_path / "b", [other.subset(np.arange(0, 300)), other.subset(np.arange(300, 900))], variant="sort")
     with pytest.raises(SimulationError, match="bundle: a reloaded bundle moved rows"):
         sim.reload_scene(stream_bundle(read_stream(export_stream(tmp_path / "b", tmp_path / "s").parent)))
