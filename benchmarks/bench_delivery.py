@@ -3,7 +3,8 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_delivery.py [--windows 0,20,40] [--slots 16]
-        [--methods l3gs,sort] [--load-s 10] [--clients 50] [--out benchmarks/results/delivery]
+        [--methods l3gs,sort] [--load-s 10] [--clients 50] [--carry started|head]
+        [--out benchmarks/results/delivery]
 
 1. **The demo room** (as ``l3gs-opt demo`` builds it: 12k splats, 4 objects, a ``sort`` bundle of
    1.5k/3k/6k/12k splats, QUICK schedule), exported as a stream (``index.json`` + ``chunks.bin``),
@@ -119,7 +120,7 @@ def _busy(rec: dict) -> bool:
 
 
 def compare_run(export: Path, teacher, mbps: float, log: Path, method: str, window: int, slots: int,
-                work: Path, server: Server) -> dict:
+                work: Path, server: Server, carry: str = "started") -> dict:
     """One fetch and its simulations. ``method``: ``NAME[:UTILITY][@tables]`` (``@tables``: the client
     knows only the index and the server's utility tables)."""
     from l3gs_opt.delivery.fetch import fetch
@@ -131,8 +132,8 @@ def compare_run(export: Path, teacher, mbps: float, log: Path, method: str, wind
     spec, _, catalogue = method.partition("@")
     catalogue = catalogue or "full"
     name, _, utility = spec.partition(":")
-    config = SimConfig(width=160, height=120, utility=utility or "eq1")
-    out = work / f"fetch-{name}-{utility or 'eq1'}-{catalogue}-w{window}"
+    config = SimConfig(width=160, height=120, utility=utility or "eq1", carry=carry)
+    out = work / f"fetch-{name}-{utility or 'eq1'}-{catalogue}-w{window}-{carry}"
     cpu0, t0 = server.cpu_s(), time.monotonic()
     got = fetch(server.url, TRACE, log, name, out, slots=slots, start=window, mbps=mbps, config=config,
                 mapping=Z_UP_MAPPING, reference=teacher, catalogue=catalogue)
@@ -167,7 +168,7 @@ def compare_run(export: Path, teacher, mbps: float, log: Path, method: str, wind
     ratio = [measured[t] / trace[t] for t in busy if trace[t] > 0]
     bundle_bytes = sum(c.bytes for c in read_stream(export).chunks)
     return {
-        "method": method, "catalogue": catalogue, "window_start_s": window, "slots": slots, "wall_s": wall,
+        "method": method, "catalogue": catalogue, "carry": carry, "window_start_s": window, "slots": slots, "wall_s": wall,
         "metadata_bytes": got.summary.get("metadata_bytes"),
         "trace_bytes": [int(b) for b in trace], "fetch_bytes": measured,
         "busy_slots": busy, "bytes_ratio_busy": ratio,
@@ -254,6 +255,11 @@ def write_report(data: dict, out: Path) -> None:
         f"the demo's orbiting viewer, Lumos5G `{TRACE}` scaled to {data['mbps']:.3f} Mbit/s (the scene in ~12 s), "
         f"160x120, {data['slots']} one-second slots per window. `l3gs-opt serve` paces each session to the trace "
         "in its own process; `fetch` streams over loopback.", "",
+        f"What a slot's cut keeps on the wire (`--carry`, the same in fetch and every simulation): "
+        f"**{data.get('carry', 'started')}** -- " + (
+            "the first request not finished stays open across the cut even with no byte yet."
+            if data.get("carry") == "head" else
+            "only a unit that got bytes carries over; a request with no byte yet is aborted and re-planned."), "",
         "## Bytes: fetch against the trace (busy slots after slot 0)", "",
         "`late`: seconds from a slot's start until its requests went out (the client's planning: only the "
         "unit carried over streams meanwhile, and the link idles if it ends first; the simulator's link plans in no "
@@ -333,6 +339,8 @@ def main() -> None:
     ap.add_argument("--methods", default="l3gs:visibility,l3gs:eq1,sort,l3gs:visibility@tables,l3gs:eq1@tables")
     ap.add_argument("--load-s", type=float, default=10.0)
     ap.add_argument("--clients", type=int, default=50)
+    ap.add_argument("--carry", default="started", choices=["started", "head"],
+                    help="what a slot's cut keeps on the wire, in fetch and the simulations (SimConfig.carry)")
     ap.add_argument("--work", default="/tmp/l3gs-bench-delivery")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "delivery"))
     ap.add_argument("--report", action="store_true", help="rewrite <out>.md from <out>.json")
@@ -367,7 +375,7 @@ def main() -> None:
     try:
         for window in [int(w) for w in args.windows.split(",")]:
             for method in args.methods.split(","):
-                r = compare_run(export, teacher, mbps, log, method, window, args.slots, work, server)
+                r = compare_run(export, teacher, mbps, log, method, window, args.slots, work, server, args.carry)
                 runs.append(r)
                 print(f"  {method} @ {window}: bytes max error {r['max_bytes_error_busy']}, SSIM fetch "
                       f"{r['mean_ssim']['fetch']:.4f} sim {r['mean_ssim']['sim_trace']:.4f}, max diff "
@@ -377,7 +385,7 @@ def main() -> None:
     load = load_test(export, args.clients, args.load_s)
     data = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "machine": machine, "aiohttp": aiohttp.__version__, "command": " ".join(sys.argv),
-            "mbps": mbps, "slots": args.slots, "catalogue_bytes": runs[0]["catalogue_bytes"] if runs else None,
+            "mbps": mbps, "slots": args.slots, "carry": args.carry, "catalogue_bytes": runs[0]["catalogue_bytes"] if runs else None,
             "runs": runs, "load": load, "loadavg_at_end": os.getloadavg(), "elapsed_s": time.monotonic() - t_start}
     write_report(data, Path(args.out))
     print(f"wrote {args.out}.md / .json")

@@ -397,15 +397,17 @@ def test_unit_chunks_cover_the_catalogue(world):
         assert sorted(c.index for u in units for c in u) == [c.index for c in index.chunks if c.bytes]
 
 
-def test_fetch_matches_simulate_given_the_same_bytes(world, tmp_path):
+@pytest.mark.parametrize("carry", ["started", "head"])
+def test_fetch_matches_simulate_given_the_same_bytes(world, tmp_path, carry):
     """A 3-slot fetch over a paced loopback link, then the simulator driven by the bytes the fetch
-    measured: the same requests, completions and in-flight units in every slot."""
+    measured: the same requests, completions and in-flight units in every slot (under either rule
+    for what a cut keeps on the wire)."""
     from l3gs_opt.simulator.client import Client, drive
     from l3gs_opt.simulator.simulation import SimConfig, Simulation
 
     trace_file = tmp_path / "trace.txt"
     trace_file.write_text("\n".join(["0.48", "0.24", "0.4"]) + "\n")     # Mbit/s: 60, 30, 50 kB per s
-    config = SimConfig(width=32, height=24, samples_per_slot=1)
+    config = SimConfig(width=32, height=24, samples_per_slot=1, carry=carry)
     out = tmp_path / "out"
     with start_server(world["single"], trace=str(trace_file), shape_anonymous=False) as h:
         result = fetch(h.url, str(trace_file), world["log"], "l3gs", out, slots=3, config=config)

@@ -9,20 +9,21 @@ from l3gs_opt.errors import L3gsError
 from l3gs_opt.simulator.link import Link, LinkError, max_min_shares, split_bytes
 
 
-def _reference(bandwidth, budget, request_lists):
+def _reference(bandwidth, budget, request_lists, carry="started"):
     """One byte at a time: the slow, obvious model of the link (what the fast one must match)."""
-    return _reference_with_head(bandwidth, budget, request_lists, [0] * len(request_lists))
+    return _reference_with_head(bandwidth, budget, request_lists, [0] * len(request_lists), carry)
 
 
+@pytest.mark.parametrize("carry", ["started", "head"])
 @pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
 @pytest.mark.parametrize("seed", range(6))
-def test_matches_byte_by_byte_reference(budget, seed):
+def test_matches_byte_by_byte_reference(budget, seed, carry):
     rng = np.random.default_rng(seed)
     T = 6
     bandwidth = rng.integers(0, 40, T).tolist()
     key = 0
     lists = []
-    fast = Link(bandwidth, budget=budget)
+    fast = Link(bandwidth, budget=budget, carry=carry)
     got = []
     for t in range(T):
         reqs = []
@@ -32,7 +33,7 @@ def test_matches_byte_by_byte_reference(budget, seed):
         lists.append(reqs)
         d = fast.step(reqs)
         got.append((d.delivered, list(d.in_flight), d.idle, d.banked))
-    assert got == _reference(bandwidth, budget, lists)
+    assert got == _reference(bandwidth, budget, lists, carry)
 
 
 @pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
@@ -161,9 +162,11 @@ def test_split_bytes_and_per_step_bandwidth():
         link.step(bandwidth=-2)
 
 
-def _reference_with_head(bandwidth, budget, request_lists, heads):
+def _reference_with_head(bandwidth, budget, request_lists, heads, carry="started"):
     """One byte at a time with a planning head: the slot's first ``heads[t]`` bytes may go only to
-    transfers carried over; those they cannot use are lost (idle, never banked)."""
+    transfers carried over; those they cannot use are lost (idle, never banked). At the cut the
+    started, unfinished transfers stay in flight, or (``carry="head"``, none started) the first
+    unfinished one."""
     flight: list[list] = []
     bank = 0
     out = []
@@ -184,23 +187,25 @@ def _reference_with_head(bandwidth, budget, request_lists, heads):
             head[2] += 1
             used += 1
             delivered[head[0]] = delivered.get(head[0], 0) + 1
-        flight = [q for q in queue if 0 < q[2] < q[1]]
+        unfinished = [q for q in queue if q[2] < q[1]]
+        flight = [q for q in unfinished if q[2] > 0] or (unfinished[:1] if carry == "head" else [])
         idle = cap - used
         bank = (idle - lost) if budget == "cumulative" else 0
         out.append((delivered, [(q[0], q[1] - q[2]) for q in flight], idle, bank))
     return out
 
 
+@pytest.mark.parametrize("carry", ["started", "head"])
 @pytest.mark.parametrize("budget", ["per_slot", "cumulative"])
 @pytest.mark.parametrize("seed", range(8))
-def test_planning_head_matches_byte_by_byte_reference(budget, seed):
+def test_planning_head_matches_byte_by_byte_reference(budget, seed, carry):
     rng = np.random.default_rng(seed)
     T = 6
     bandwidth = [int(x) for x in rng.integers(0, 40, size=T)]
     heads = [int(x) for x in rng.integers(0, 25, size=T)]
     reqs = [[(f"{t}-{i}", int(rng.integers(1, 30))) for i in range(int(rng.integers(0, 4)))] for t in range(T)]
-    link = Link(bandwidth, budget=budget)
-    for (delivered, flight, idle, bank), requests, h in zip(_reference_with_head(bandwidth, budget, reqs, heads),
+    link = Link(bandwidth, budget=budget, carry=carry)
+    for (delivered, flight, idle, bank), requests, h in zip(_reference_with_head(bandwidth, budget, reqs, heads, carry),
                                                           reqs, heads):
         d = link.step(requests, head_bytes=h)
         assert (d.delivered, list(d.in_flight), d.idle, d.banked) == (delivered, flight, idle, bank)
@@ -212,3 +217,20 @@ def test_planning_head_hand_computed():
     assert d.in_flight == (("a", 30),)
     d = link.step([("b", 200)], head_bytes=50)     # 'a' uses 30 of the 50, 20 are lost, 'b' gets 50
     assert d.delivered == {"a": 30, "b": 50} and d.idle == 20
+
+
+def test_carry_head_keeps_the_request_on_the_wire():
+    """A cut just before or just after a chunk's first byte leaves the same chunk first next slot."""
+    for cap, flight in ((10, ("b", 10)), (11, ("b", 9))):
+        link = Link([cap, 100], carry="head")
+        d = link.step([("a", 10), ("b", 10), ("c", 10)])
+        assert d.in_flight == (flight,) and d.dropped == ("c",)
+        assert list(link.step([("d", 5)]).delivered) == ["b", "d"]
+    started = Link([10, 100])
+    d = started.step([("a", 10), ("b", 10)])
+    assert d.in_flight == () and d.dropped == ("b",)
+    # No capacity at all: the first request still waits on the wire, the others drop.
+    d = Link([0], carry="head").step([("a", 3), ("b", 4)])
+    assert d.in_flight == (("a", 3),) and d.dropped == ("b",) and d.started == ()
+    with pytest.raises(LinkError, match="carry = 'tail'"):
+        Link([1], carry="tail")

@@ -8,6 +8,7 @@ lookups at grid viewpoints equal the exact utilities).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -87,6 +88,30 @@ def test_link_delivers_exactly_the_trace(world):
         assert [rec["bytes_delivered"] for rec in r.records] == bandwidth
         assert [rec["bytes_trace"] for rec in r.records] == bandwidth
         assert r.summary["bytes_delivered"] == sum(bandwidth) and r.summary["bytes_idle"] == 0
+
+
+def test_carry_head_keeps_a_request_with_no_byte_in_flight(world):
+    """A cut exactly at a unit's first byte: the default rule drops the unit and re-plans, ``head``
+    keeps it first in flight (its remaining bytes its size), as if the cut fell one byte later."""
+    base = _sim(world, "sort", [30_000] * SLOTS).run("l3gs")
+    (o, lv, remaining), = base.records[0]["in_flight"]
+    cat = _sim(world, "sort", [30_000] * SLOTS).catalog("object")
+    size = int(cat.bytes[cat.unit((o, lv))])
+    at_start = 30_000 - (size - remaining)           # slot 0 ends where that unit begins
+    runs = {}
+    for carry, extra in (("started", 0), ("head", 0), ("head", 1)):
+        cfg = dataclasses.replace(CONFIG, carry=carry)
+        runs[carry, extra] = _sim(world, "sort", [at_start + extra] + [30_000] * (SLOTS - 1), config=cfg).run("l3gs")
+    assert runs["started", 0].records[0]["in_flight"] == []
+    assert runs["head", 0].records[0]["in_flight"] == [[o, lv, size]]
+    assert runs["head", 1].records[0]["in_flight"] == [[o, lv, size - 1]]
+    # Slot 1 starts with that unit in both head runs, and the two runs ask for the same units after it.
+    for extra in (0, 1):
+        rec = runs["head", extra].records[1]
+        assert (rec["completed"] or rec["in_flight"])[0][:2] == [o, lv]
+    assert runs["head", 0].records[1]["requests"] == runs["head", 1].records[1]["requests"]
+    with pytest.raises(SimulationError, match="carry: 'tail'"):
+        SimConfig(carry="tail")
 
 
 def test_preload_is_the_upper_reference(runs):

@@ -24,7 +24,7 @@ def _cmd_fetch(args: argparse.Namespace) -> int:
         raise FetchError("--out", f"{args.out} is a file: expected a folder")
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
-                       bandwidth_predictor=args.bandwidth_predictor, utility=args.utility)
+                       bandwidth_predictor=args.bandwidth_predictor, utility=args.utility, carry=args.carry)
     mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
     poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=args.path_rate)
     result = fetch(args.url, args.trace, poses, args.method, args.out, slots=args.slots, resume=args.resume,
@@ -89,6 +89,9 @@ def register(subparsers) -> None:
                    help="seconds a transfer retries a lost connection (a server restart) without a byte before "
                         "the fetch fails")
     p.add_argument("--budget", default="per_slot", choices=["per_slot", "cumulative"])
+    p.add_argument("--carry", default="started", choices=["started", "head"],
+                   help="at a slot's cut: abort a request with no byte yet (default), or keep the first one open "
+                        "(as simulate --carry)")
     p.add_argument("--viewport", default="lr", choices=["lr", "last", "oracle"])
     p.add_argument("--bandwidth-predictor", default="harmonic", choices=["harmonic", "last", "oracle"])
     p.add_argument("--utility", default="eq1", metavar="NAME")

@@ -22,7 +22,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
                        bandwidth_predictor=args.bandwidth_predictor, robust=args.robust, utility=args.utility,
                        order_utility=args.order_utility, utility_mode=args.utility_mode,
-                       splat_order=args.splat_order, decision_s=args.decision_s, time_limit_s=args.time_limit, horizon=args.horizon, fill=not args.no_fill,
+                       splat_order=args.splat_order, carry=args.carry, decision_s=args.decision_s, time_limit_s=args.time_limit, horizon=args.horizon, fill=not args.no_fill,
                        backend=args.backend, substeps=args.substeps, bandwidth_bias=args.bandwidth_bias,
                        sh_upgrade_utility=args.sh_upgrade_utility)
     if args.resume and not args.out:
@@ -148,6 +148,9 @@ def register(subparsers) -> None:
     p.add_argument("--decision-s", type=float, default=0.0, metavar="S",
                    help="seconds the client plans at each slot start while only the carried-over chunk streams "
                         "(the link idles if it ends first; 0: the paper's model; fetch's records give late_s)")
+    p.add_argument("--carry", default="started", choices=["started", "head"],
+                   help="what a slot's cut keeps in flight: the chunk that got bytes (default), or also the first "
+                        "request still waiting for its first byte (as 'l3gs-opt fetch --carry head' keeps it open)")
     p.add_argument("--splat-order", default="method", choices=["method", "stored"],
                    help="a chunk's splats on the wire: as the method says (by predicted utility), or in the "
                         "bundle's stored order, as 'l3gs-opt fetch' receives static chunk files by HTTP Range")

@@ -12,7 +12,8 @@ schedules (nothing of that is repeated here); only its delivery is replaced. Eac
    ``distill`` layer in the ``object`` view -- is its chunks in index order).
 3. At the slot's wall-clock end the wire is cut: the bytes that arrived per unit in the slot are
    read off, the requests not started are dropped, a request started in the slot with no byte
-   yet is aborted, and the unit being received carries over (it keeps streaming while the client
+   yet is aborted (with ``SimConfig.carry="head"`` the first request not finished is kept open
+   instead, whether a byte of it arrived or not), and the unit being received carries over (it keeps streaming while the client
    renders and plans). ``Client.deliver(ids, measured)`` then runs the simulator's link model with
    the measured bytes as the slot's share, which reproduces the wire's per-unit bytes exactly
    (the same sequential order): this is checked every slot, so the records, the rendering and
@@ -204,6 +205,7 @@ class HttpLink:
         self.queue: deque = deque()            # [unit, bytes of it held], the head being received
         self.slot_bytes: OrderedDict = OrderedDict()
         self.fresh: set = set()                # units requested in this slot
+        self.carry = "started"                 # SimConfig.carry: what a cut keeps on the wire
         self.error: Optional[BaseException] = None
         self._task: Optional[asyncio.Task] = None
         self._wake: Optional[asyncio.Event] = None
@@ -266,10 +268,11 @@ class HttpLink:
 
     # -- the streaming session (all below runs on the loop's thread) -----------------------------
     def begin(self, units: list[tuple[StreamChunk, ...]], store: _Store, *, trace_slot: int,
-              carried: Optional[tuple[int, int]] = None) -> None:
+              carried: Optional[tuple[int, int]] = None, carry: str = "started") -> None:
         """Prepare the session: units' chunks, where bytes go, the trace slot the session starts
-        at, and the unit in flight (unit, bytes of it held) after a resume."""
-        self.units, self.store, self.trace_slot = units, store, trace_slot
+        at, the unit in flight (unit, bytes of it held) after a resume, and what a cut keeps
+        (``SimConfig.carry``)."""
+        self.units, self.store, self.trace_slot, self.carry = units, store, trace_slot, carry
 
         async def go():
             self._wake = asyncio.Event()
@@ -297,8 +300,8 @@ class HttpLink:
                 raise self.error
             got, self.slot_bytes = self.slot_bytes, OrderedDict()
             head = self.queue[0] if self.queue else None
-            keep = head is not None and got.get(head[0], 0) + head[1] > 0 and \
-                (got.get(head[0], 0) > 0 or head[0] not in self.fresh)
+            keep = head is not None and (self.carry == "head" or got.get(head[0], 0) + head[1] > 0 and
+                                         (got.get(head[0], 0) > 0 or head[0] not in self.fresh))
             if head is not None and not keep:
                 # Started with no byte yet (or not started at all): the link model drops it; abort.
                 self._task.cancel()
@@ -603,7 +606,7 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
                 carried = (int(tr.key), int(tr.delivered))
         if tables is not None:
             sim.reload_scene(bundle)
-        link.begin(units, store, trace_slot=start + cl.first_slot, carried=carried)
+        link.begin(units, store, trace_slot=start + cl.first_slot, carried=carried, carry=config.carry)
         # The references the pictures are scored against, before the clock starts (evaluation work;
         # the first render also compiles the renderer, which would make slot 0's cut late).
         for t in range(cl.first_slot, sim.T):

@@ -90,7 +90,7 @@ class Client:
                 self.complete[k] = True
                 self.order[k] = cat.rows[k]
         # Capacities are set part by part (a shared link's share is decided as the slot runs).
-        self.link = Link([0] * (sim.T * cfg.substeps), budget=cfg.budget)
+        self.link = Link([0] * (sim.T * cfg.substeps), budget=cfg.budget, carry=cfg.carry)
         # A kept-busy link never idles while something is left, and a chunk cut off carries over:
         # the bytes arriving by slot t are bounded by the bytes up to t, the cumulative budget.
         self.plan_budget = "cumulative" if cfg.budget == "cumulative" or cfg.fill else "per_slot"

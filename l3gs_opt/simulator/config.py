@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.simulator.link import BUDGETS
+from l3gs_opt.simulator.link import BUDGETS, CARRIES
 
 __all__ = ["SimulationError", "SimConfig", "SlotInputs", "TIMING_KEYS", "SH_UPGRADE_UTILITIES"]
 
@@ -84,6 +84,11 @@ class SimConfig:
     bandwidth_bias : float
         The predicted bytes of a slot are multiplied by this (> 0): 1 is the predictor as is,
         above 1 an over-optimistic predictor (for sensitivity studies).
+    carry : {"started", "head"}
+        What a slot's cut keeps in flight (:data:`l3gs_opt.simulator.link.CARRIES`): only a unit
+        that got bytes (``started``, the default), or also the first request still waiting for
+        its first byte (``head``: the request on the wire; ``l3gs-opt fetch`` then keeps it open
+        across the cut instead of aborting it).
     decision_s : float
         Seconds the client takes to plan at each re-plan point after the first (>= 0; 0, the
         paper's model: requests go out as the slot starts). Meanwhile only the unit carried over
@@ -125,6 +130,7 @@ class SimConfig:
     backend: str = "highs"
     substeps: int = 1
     bandwidth_bias: float = 1.0
+    carry: str = "started"
     decision_s: float = 0.0
     sh_upgrade_utility: str | float = "residual"
 
@@ -147,7 +153,8 @@ class SimConfig:
         if self.width < 11 or self.height < 11:
             raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),
-                              ("utility_mode", _UTILITY_MODES), ("splat_order", SPLAT_ORDERS)):
+                              ("utility_mode", _UTILITY_MODES), ("splat_order", SPLAT_ORDERS),
+                              ("carry", CARRIES)):
             if getattr(self, name) not in allowed:
                 raise SimulationError(name, f"{getattr(self, name)!r} is not one of {', '.join(allowed)}")
         from l3gs_opt.pipeline.utilities import UtilityNameError, get_utility, utility_names

@@ -2,10 +2,13 @@
 
 Each slot ``t`` the link can move ``capacity[t] = bandwidth[t] (+ bank)`` bytes. It sends, in
 order, first what was cut off at the end of the previous slot (*in flight*: it carries over),
-then the slot's requests, each from its first byte to its last. A request that gets no byte in
-the slot is dropped (the client asks again next slot if it still wants it: the requester
-re-plans every slot). A request that gets some but not all of its bytes is in flight and
-continues first next slot. When the queue runs dry, the rest of the slot's bytes are idle:
+then the slot's requests, each from its first byte to its last. A request that gets some but not
+all of its bytes is in flight and continues first next slot. What the cut does to a request that
+got no byte is the ``carry`` rule: ``"started"`` (default) drops every such request (the client
+asks again next slot if it still wants it: the requester re-plans every slot); ``"head"`` keeps
+the first of them in flight when no started transfer is cut off (the request on the wire at the
+cut: an HTTP client has sent it and waits for its first byte), so that whether a cut falls a few
+bytes before or after a chunk's first byte no longer decides what goes first next slot. When the queue runs dry, the rest of the slot's bytes are idle:
 lost (``budget="per_slot"``, the paper's per-slot budget) or banked for the next slot
 (``budget="cumulative"``: the bytes up to slot t are bounded by the bandwidth up to slot t,
 the instance option of the same name).
@@ -34,9 +37,11 @@ import numpy as np
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.traces.bandwidth import MAX_SLOT_BYTES
 
-__all__ = ["LinkError", "Transfer", "SlotDelivery", "Link", "BUDGETS", "max_min_shares", "split_bytes"]
+__all__ = ["LinkError", "Transfer", "SlotDelivery", "Link", "BUDGETS", "CARRIES", "max_min_shares", "split_bytes"]
 
 BUDGETS = ("per_slot", "cumulative")
+#: What a slot's cut keeps in flight (``Link.carry``; see the module docstring).
+CARRIES = ("started", "head")
 
 
 class LinkError(L3gsError, ValueError):
@@ -74,7 +79,8 @@ class SlotDelivery:
     dropped : tuple
         Requests that got no byte (they are forgotten).
     in_flight : tuple of (key, remaining bytes)
-        Cut off at the end of the slot: they continue first next slot.
+        Cut off at the end of the slot: they continue first next slot (with ``carry="head"``, a
+        request with no byte yet may be among them: its remaining bytes are its size).
     idle : int
         Bytes of ``capacity`` not used (``sum(delivered) + idle == capacity``).
     banked : int
@@ -121,15 +127,19 @@ class Link:
         Bytes the trace allows in each slot (bytes per slot, >= 0).
     budget : {"per_slot", "cumulative"}
         Whether idle bytes are lost or banked for the next slot.
+    carry : {"started", "head"}
+        Whether the cut keeps only started transfers in flight, or also the first request with
+        no byte yet when nothing started is cut off.
 
     Raises
     ------
     LinkError
-        A negative or fractional byte count (naming the index), an unknown budget.
+        A negative or fractional byte count (naming the index), an unknown budget or carry rule.
     """
 
     bandwidth: Sequence[int]
     budget: str = "per_slot"
+    carry: str = "started"
     slot: int = field(default=0, init=False)
     bank: int = field(default=0, init=False)
     in_flight: list = field(default_factory=list, init=False)
@@ -137,6 +147,8 @@ class Link:
     def __post_init__(self) -> None:
         if self.budget not in BUDGETS:
             raise LinkError(f"budget = {self.budget!r}: must be one of {', '.join(BUDGETS)}")
+        if self.carry not in CARRIES:
+            raise LinkError(f"carry = {self.carry!r}: must be one of {', '.join(CARRIES)}")
         self.bandwidth = [_byte_count(b, "bandwidth", i) for i, b in enumerate(self.bandwidth)]
 
     @property
@@ -193,7 +205,8 @@ class Link:
         started, completed, carried, dropped = [], [], [], []
         for tr in queue:
             if left <= 0:
-                (carried if tr.delivered else dropped).append(tr)
+                keep = tr.delivered > 0 or (self.carry == "head" and not carried)
+                (carried if keep else dropped).append(tr)
                 continue
             if tr.delivered == 0:
                 started.append(tr.key)
