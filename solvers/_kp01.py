@@ -8,13 +8,22 @@ whose weights sit just above ``capacity / k``: the LP fills the knapsack, no int
 
 Algorithm (in the spirit of Pisinger's Minknap and Combo, with a different bound):
 
-1. **Relaxed DP bound.** Weights are rounded down to units of ``delta`` bytes
-   (``delta = ceil(capacity / units)``), profits kept exact. ``U_s[r]``, the best profit of items
-   ``s..n-1`` within ``r`` units, is an upper bound on what those items add to any state with at
-   least ``r * delta`` and less than ``(r + 1) * delta`` bytes left: a set of items that fits in
-   ``R`` bytes has rounded weights summing to at most ``floor(R / delta)``. Unlike the LP bound it
-   knows items are indivisible (two items of ``capacity / 2 + 1`` bytes do not fit), and with
-   ``capacity <= units`` (``delta = 1``) it is exact. The tables are kept every ``B`` stages and
+1. **Relaxed DP bound.** Weights are scaled by ``lambda = num / den`` and rounded down
+   (``floor(lambda w)`` units), profits kept exact. ``U_s[r]``, the best profit of items
+   ``s..n-1`` whose units sum to at most ``r``, is an upper bound on what those items add to any
+   state with ``R`` bytes left, at ``r = floor(lambda R)``: a set of items that fits in ``R`` bytes
+   has ``sum floor(lambda w) <= floor(lambda sum w) <= floor(lambda R)`` (a Chvatal-Gomory rounding
+   of the capacity row). Unlike the LP bound it knows items are indivisible (two items of
+   ``capacity / 2 + 1`` bytes do not fit). The scale is ``lambda = units / (capacity + 1)``: the
+   capacity becomes ``units - 1`` units and an item a little heavier than ``capacity / k`` keeps
+   its full ``units / k`` (Jooken's groups sit just above ``capacity / 2^i``: the knapsack cannot be
+   filled to the last unit, and the bound knows it). The usual ``1 / ceil(capacity / units)``
+   rounds those items down a unit and loses exactly that: on Jooken's ``eps = 0`` files its root
+   bound is ``capacity / 512`` above the optimum, this one's is the optimum. ``units`` is the
+   largest table allowed or a power of two below it, whichever gives the smaller root bound
+   (:func:`_pick_scale`). When ``units * (capacity + 1)`` would not fit in int64 the scale falls
+   back to ``1 / ceil(capacity / units)``; with ``capacity <= units`` it is 1 (exact). The same
+   DP with weights rounded *up* gives a feasible start (:func:`_dp_solution`). The tables are kept every ``B`` stages and
    recomputed block by block (memory O((n / B + B) * units), work 2 n units).
 2. **Forward DP over Pareto states** ``(bytes, profit)``: per item, merge "without" and "with",
    drop dominated states (more bytes, no more profit) and states whose ``profit + U`` cannot beat
@@ -104,6 +113,43 @@ def _greedy(w: np.ndarray, p: np.ndarray, c: int) -> np.ndarray:
     return take
 
 
+def _dp_value(wu: np.ndarray, p: np.ndarray, m: int) -> int:
+    """The best profit of items whose units ``wu`` sum to at most ``m``."""
+    u = np.zeros(m + 1, dtype=np.int64)
+    for k, pk in zip(wu.tolist(), p.tolist()):
+        if k <= m:
+            np.maximum(u[k:], u[:m + 1 - k] + pk, out=u[k:])
+    return int(u[m])
+
+
+def _dp_solution(wu: np.ndarray, p: np.ndarray, m: int) -> np.ndarray:
+    """The best items (bool [n]) whose units ``wu`` sum to at most ``m``. With weights rounded *up*
+    (``ceil(lambda w)``) a feasible solution of the knapsack (``sum ceil(lambda w) <= floor(lambda
+    c)`` implies ``sum w <= c``); with them rounded down, the relaxation's optimum (feasible or not:
+    the caller checks the bytes)."""
+    n = len(wu)
+    u = np.zeros(m + 1, dtype=np.int64)
+    took = np.zeros((n, (m + 8) // 8), dtype=np.uint8)    # bit r of row i: item i taken at r units
+    row = np.zeros(m + 1, dtype=bool)
+    for i in range(n):
+        k = int(wu[i])
+        if k > m:
+            continue
+        cand = u[:m + 1 - k] + int(p[i])
+        better = cand > u[k:]
+        u[k:] = np.where(better, cand, u[k:])
+        row[:k] = False
+        row[k:] = better
+        took[i] = np.packbits(row)
+    take = np.zeros(n, dtype=bool)
+    r = m
+    for i in range(n - 1, -1, -1):
+        if took[i, r >> 3] >> (7 - (r & 7)) & 1:
+            take[i] = True
+            r -= int(wu[i])
+    return take
+
+
 class _Bounds:
     """``U_s`` for s = 0..n (items in DP order), kept every ``block`` stages, recomputed per block."""
 
@@ -142,6 +188,27 @@ class _Bounds:
                 self.cache[t] = u
             self.cache_block = b
         return self.cache[s]
+
+
+def _pick_scale(w: np.ndarray, p: np.ndarray, capacity: int, units: int) -> tuple[int, int]:
+    """The relaxed DP's ``lambda = num / den`` (module docstring): 1 for small capacities; else
+    ``K / (capacity + 1)`` for the ``K`` among ``units`` and the powers of two below it whose
+    root bound is smallest (the finest on a tie: a finer scale is not always tighter, as the
+    rounding loss depends on how the weights sit against ``capacity / K``; the candidates cost
+    about twice one table); ``1 / ceil(capacity / units)`` when ``units * (capacity + 1)`` would
+    overflow int64."""
+    if capacity <= units:
+        return 1, 1
+    if units * (capacity + 1) >= 2**62:
+        return 1, -(-capacity // units)
+    den = capacity + 1
+    candidates = [units] + [1 << j for j in range(units.bit_length() - 1, 5, -1) if 1 << j != units]
+    best = None
+    for K in candidates:
+        b = _dp_value(K * w // den, p, K * capacity // den)
+        if best is None or b < best[0]:
+            best = (b, K)
+    return best[1], den
 
 
 def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_limit_s: float | None = None,
@@ -193,11 +260,21 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     wo, po = w[order], p[order]
     # Bound tables cost n x units work twice: keep that near 3e8 cells on large n.
     units = max(1024, min(units, _WORK_CELLS // n))
-    delta = max(1, -(-c // units))
-    m = c // delta
-    wu = wo // delta
+    num, den = _pick_scale(wo, po, c, units)
+    m = num * c // den
+    wu = num * wo // den
+    # Two DP solutions at that scale: weights rounded up (always feasible) and rounded down (the
+    # relaxation's own optimum: feasible more often than not, and then optimal).
+    for name, rounded in (("rounded_up", -(-num * wo // den)), ("rounded_down", wu)):
+        sol = _dp_solution(rounded, po, m)
+        value = int(po[sol].sum())
+        stats[name] = value if int(wo[sol].sum()) <= c else None
+        if stats[name] is not None and value > z:
+            best_take = np.zeros(n, dtype=bool)
+            best_take[order[sol]] = True
+            z = value
     bounds = _Bounds(wu, po, m)
-    stats["delta"] = delta
+    stats["scale"] = f"{num}/{den}"
     root = int(bounds.at(0)[m])
     stats["root_bound"] = root
     if root <= z:
@@ -222,7 +299,8 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
             break
         u_next = bounds.at(s + 1)
         bit = np.uint64(1) << np.uint64(s % _BLOCK)
-        W, P, M, A = kern.stage(W, P, M, A, int(wo[s]), int(po[s]), bit, c, u_next, delta, z, cwf, cpf, eff, s + 1)
+        W, P, M, A = kern.stage(W, P, M, A, int(wo[s]), int(po[s]), bit, c, u_next, num, den, z, cwf, cpf, eff,
+                                s + 1)
         s_done = s + 1
         k = len(W)
         if k == 0:
@@ -245,7 +323,7 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     else:
         stats["stopped"] = stopped
         u_next = bounds.at(s_done)
-        live = int((P + u_next[(c - W) // delta]).max()) if len(W) else z
+        live = int((P + u_next[num * (c - W) // den]).max()) if len(W) else z
         bound = max(z, live)
         optimal = bound <= z
     out = np.zeros(n_all, dtype=bool)

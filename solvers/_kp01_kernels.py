@@ -14,12 +14,13 @@ __all__ = ["stage"]
 
 @numba.njit(cache=True, nogil=True)
 def stage(W: np.ndarray, P: np.ndarray, M: np.ndarray, A: np.ndarray, w: int, p: int, bit: np.uint64, cap: int,
-          U: np.ndarray, delta: int, z: int, cw: np.ndarray, cp: np.ndarray, eff: np.ndarray,
+          U: np.ndarray, num: int, den: int, z: int, cw: np.ndarray, cp: np.ndarray, eff: np.ndarray,
           nxt: int):  # pragma: no cover
     """Merge the states without the item (``W`` ascending, ``P`` strictly rising) and with it.
 
     A candidate is dropped when an earlier one (no more bytes) has at least its profit, or when
-    ``profit + U[(cap - bytes) // delta] <= z`` or its LP bound is (it cannot beat the incumbent ``z``).
+    ``profit + U[num * (cap - bytes) // den] <= z`` (the relaxed DP bound at the scale
+    ``num / den``; ``num * cap`` fits in int64) or its LP bound is (it cannot beat the incumbent ``z``).
 
     The LP (Dantzig) bound of the items ``nxt..`` (by profit per byte, best first) within ``r``
     bytes: ``cw``/``cp`` are their float64 running sums of bytes and profit, ``eff`` each one's
@@ -67,7 +68,7 @@ def stage(W: np.ndarray, P: np.ndarray, M: np.ndarray, A: np.ndarray, w: int, p:
         if cp_ <= last:
             continue
         last = cp_
-        if cp_ + U[(cap - cw_) // delta] <= z:
+        if cp_ + U[num * (cap - cw_) // den] <= z:
             continue
         r = cap - cw_
         if r < last_r_ok:

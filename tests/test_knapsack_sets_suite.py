@@ -78,6 +78,39 @@ def test_bb_on_one_layer_instances_equals_brute_force(case):
     assert sol.status.value == "optimal" and sol.objective == opt and sol.bound >= opt
 
 
+@settings(max_examples=100, deadline=None)
+@given(_instances(), st.integers(2, 300))
+def test_rounded_dps_bracket_the_optimum(case, K):
+    """At any scale K / (c + 1): weights rounded down give an upper bound (and the relaxation's own
+    optimum, of that value), weights rounded up a feasible solution."""
+    w, p, c, _ = case
+    w, p = np.array(w, dtype=np.int64), np.array(p, dtype=np.int64)
+    opt = _brute(w.tolist(), p.tolist(), c)
+    den, m = c + 1, K * c // (c + 1)
+    down = K * w // den
+    assert _kp01._dp_value(down, p, m) >= opt
+    relaxed = _kp01._dp_solution(down, p, m)
+    assert int(p[relaxed].sum()) == _kp01._dp_value(down, p, m) and int(down[relaxed].sum()) <= m
+    up = _kp01._dp_solution(-(-K * w // den), p, m)
+    assert int(w[up].sum()) <= c and int(p[up].sum()) <= opt
+
+
+def test_scale_just_below_the_groups_proves_at_the_root():
+    """Items a few bytes above capacity / 2^i (Jooken's groups) and profits near the weights: the
+    scale units / (c + 1) sees that the knapsack cannot be filled to its last unit; the scale
+    1 / ceil(c / units) rounds every group item down a unit and overestimates."""
+    rng = np.random.default_rng(3)
+    c, units = 10**6, 64
+    w = [c // 2**i + int(rng.integers(1, 6)) for i in range(1, 7) for _ in range(2)] + [3, 4, 5, 7]
+    p = [wi + int(rng.integers(-3, 4)) for wi in w]
+    opt = _brute(w, p, c)
+    res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=units)
+    assert res.optimal and res.value == opt and res.stats["stages"] == 0 and res.stats["root_bound"] == opt
+    delta = -(-c // units)
+    old = _kp01._dp_value(np.array(w) // delta, np.array(p), c // delta)
+    assert old > opt + c // 2**7
+
+
 def test_fits_kp01_refuses_fractions_and_huge_totals():
     assert _kp01.fits_kp01(np.array([1, 2]), np.array([3.0, 4.0]))
     assert not _kp01.fits_kp01(np.array([1, 2]), np.array([3.5, 4.0]))
