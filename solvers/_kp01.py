@@ -23,8 +23,9 @@ Algorithm (in the spirit of Pisinger's Minknap and Combo, with a different bound
    largest table allowed or a power of two below it, whichever gives the smaller root bound
    (:func:`_pick_scale`). When ``units * (capacity + 1)`` would not fit in int64 the scale falls
    back to ``1 / ceil(capacity / units)``; with ``capacity <= units`` it is 1 (exact). The same
-   DP with weights rounded *up* gives a feasible start (:func:`_dp_solution`). The tables are kept every ``B`` stages and
-   recomputed block by block (memory O((n / B + B) * units), work 2 n units).
+   DP with weights rounded *up* gives a feasible start (:func:`_dp_solution`). The tables are
+   kept every ``B`` stages and recomputed block by block (memory O((n / B + B) * units), work
+   2 n units; choosing the scale and the two start solutions cost about 4 n units more).
 2. **Forward DP over Pareto states** ``(bytes, profit)``: per item, merge "without" and "with",
    drop dominated states (more bytes, no more profit) and states whose ``profit + U`` cannot beat
    the incumbent. Every state is a feasible solution, so the incumbent rises as the DP goes.
@@ -258,7 +259,8 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     # DP order: by profit per byte, best first (the states then rise in profit early: good incumbents).
     order = np.lexsort((-w, -(p / w)))
     wo, po = w[order], p[order]
-    # Bound tables cost n x units work twice: keep that near 3e8 cells on large n.
+    # Bound tables cost n x units work twice (and the scale and start solutions about 4 times):
+    # keep that near 3e8 cells on large n.
     units = max(1024, min(units, _WORK_CELLS // n))
     num, den = _pick_scale(wo, po, c, units)
     m = num * c // den

@@ -13,8 +13,8 @@ schedules (nothing of that is repeated here); only its delivery is replaced. Eac
 3. At the slot's wall-clock end the wire is cut: the bytes that arrived per unit in the slot are
    read off, the requests not started are dropped, a request started in the slot with no byte
    yet is aborted (with ``SimConfig.carry="head"`` the first request not finished is kept open
-   instead, whether a byte of it arrived or not), and the unit being received carries over (it keeps streaming while the client
-   renders and plans). ``Client.deliver(ids, measured)`` then runs the simulator's link model with
+   instead, whether a byte of it arrived or not), and the unit being received carries over (it
+   keeps streaming while the client renders and plans). ``Client.deliver(ids, measured)`` then runs the simulator's link model with
    the measured bytes as the slot's share, which reproduces the wire's per-unit bytes exactly
    (the same sequential order): this is checked every slot, so the records, the rendering and
    the next prediction rest on what really arrived.
