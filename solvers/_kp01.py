@@ -267,7 +267,9 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     wu = num * wo // den
     # Two DP solutions at that scale: weights rounded up (always feasible) and rounded down (the
     # relaxation's own optimum: feasible more often than not, and then optimal).
-    for name, rounded in (("rounded_up", -(-num * wo // den)), ("rounded_down", wu)):
+    # At scale 1 (small capacities) the two are the same exact DP: run it once.
+    roundings = [("rounded_up", -(-num * wo // den))] + ([("rounded_down", wu)] if num != den else [])
+    for name, rounded in roundings:
         sol = _dp_solution(rounded, po, m)
         value = int(po[sol].sum())
         stats[name] = value if int(wo[sol].sum()) <= c else None

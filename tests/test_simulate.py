@@ -93,9 +93,9 @@ def test_link_delivers_exactly_the_trace(world):
 def test_carry_head_keeps_a_request_with_no_byte_in_flight(world):
     """A cut exactly at a unit's first byte: the default rule drops the unit and re-plans, ``head``
     keeps it first in flight (its remaining bytes its size), as if the cut fell one byte later."""
-    base = _sim(world, "sort", [30_000] * SLOTS).run("l3gs")
-    (o, lv, remaining), = base.records[0]["in_flight"]
-    cat = _sim(world, "sort", [30_000] * SLOTS).catalog("object")
+    sim = _sim(world, "sort", [30_000] * SLOTS)
+    (o, lv, remaining), = sim.run("l3gs").records[0]["in_flight"]
+    cat = sim.catalog("object")
     size = int(cat.bytes[cat.unit((o, lv))])
     at_start = 30_000 - (size - remaining)           # slot 0 ends where that unit begins
     runs = {}
