@@ -111,6 +111,41 @@ def test_scale_just_below_the_groups_proves_at_the_root():
     assert old > opt + c // 2**7
 
 
+def test_least_loss_scale_proves_at_the_root_where_powers_of_two_do_not():
+    """Groups at ``(1/2^i + eps) capacity``: every power-of-two table loses ``frac(eps K)`` of a unit
+    per item and the relaxation fits one item too many; a table size picked by least rounding loss
+    (not a power of two) proves the brute-force optimum before any state is built."""
+    rng = np.random.default_rng(2)
+    c, eps = 10**6, 0.0134
+    w = [int((1 / 2**i + eps) * c) + int(rng.integers(1, 6)) for i in range(1, 6) for _ in range(2)] + [3, 4, 5]
+    p = [wi + int(rng.integers(-3, 4)) for wi in w]
+    opt = _brute(w, p, c)
+    res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=1024)
+    num = int(res.stats["scale"].split("/")[0])
+    assert res.optimal and res.value == opt and res.stats["stages"] == 0 and res.stats["root_bound"] == opt
+    assert num & (num - 1) != 0                                     # not a power of two
+    W, P = np.array(w), np.array(p)
+    assert min(_kp01._dp_value(K * W // (c + 1), P, K * c // (c + 1)) for K in (2**j for j in range(4, 11))) > opt
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(1, 10**10), min_size=1, max_size=40), st.integers(10**10, 10**11),
+       st.sampled_from([64, 1000, 1 << 12]))
+def test_least_loss_scales_lose_no_more_than_the_powers_of_two_they_replace(w, c, units):
+    """The picked sizes lie in [units / 4, units] and lose (float64, all items, within the named
+    1e-6 relative tolerance of the float scoring) no more bytes per item than any power of two there."""
+    w = np.array(w, dtype=np.int64)
+    den = c + 1
+
+    def loss(K):
+        return sum((K * wi % den) / K for wi in w.tolist()) / len(w)
+
+    picked = _kp01._least_loss_scales(w, den, units)
+    powers = [K for K in (2**j for j in range(units.bit_length())) if units // 4 <= K <= units]
+    assert picked and all(units // 4 <= K <= units for K in picked)
+    assert loss(picked[0]) <= min(loss(K) for K in powers) * (1 + 1e-6) + 1e-6
+
+
 def test_fits_kp01_refuses_fractions_and_huge_totals():
     assert _kp01.fits_kp01(np.array([1, 2]), np.array([3.0, 4.0]))
     assert not _kp01.fits_kp01(np.array([1, 2]), np.array([3.5, 4.0]))
