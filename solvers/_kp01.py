@@ -20,12 +20,14 @@ Algorithm (in the spirit of Pisinger's Minknap and Combo, with a different bound
    filled to the last unit, and the bound knows it). The usual ``1 / ceil(capacity / units)``
    rounds those items down a unit and loses exactly that: on Jooken's ``eps = 0`` files its root
    bound is ``capacity / 512`` above the optimum, this one's is the optimum. ``units`` is the
-   largest table allowed or a power of two below it, whichever gives the smaller root bound
+   largest table allowed, a power of two below it, or one of the three sizes in ``[units / 4,
+   units]`` that lose the fewest bytes per item to rounding (a power of two loses ``frac(eps K)`` of
+   a unit on every item of ``(1/2^i + eps) capacity``), whichever gives the smallest root bound
    (:func:`_pick_scale`). When ``units * (capacity + 1)`` would not fit in int64 the scale falls
    back to ``1 / ceil(capacity / units)``; with ``capacity <= units`` it is 1 (exact). The same
    DP with weights rounded *up* gives a feasible start (:func:`_dp_solution`). The tables are
    kept every ``B`` stages and recomputed block by block (memory O((n / B + B) * units), work
-   2 n units; choosing the scale and the two start solutions cost about 4 n units more).
+   2 n units; choosing the scale and the two start solutions cost about 7 n units more).
 2. **Forward DP over Pareto states** ``(bytes, profit)``: per item, merge "without" and "with",
    drop dominated states (more bytes, no more profit) and states whose ``profit + U`` cannot beat
    the incumbent. Every state is a feasible solution, so the incumbent rises as the DP goes.
@@ -199,11 +201,11 @@ class _Bounds:
 
 def _pick_scale(w: np.ndarray, p: np.ndarray, capacity: int, units: int) -> tuple[int, int]:
     """The relaxed DP's ``lambda = num / den`` (module docstring): 1 for small capacities; else
-    ``K / (capacity + 1)`` for the ``K`` among ``units`` and the powers of two below it whose
-    root bound is smallest (the finest on a tie: a finer scale is not always tighter, as the
-    rounding loss depends on how the weights sit against ``capacity / K``; the candidates cost
-    about twice one table); ``1 / ceil(capacity / units)`` when ``units * (capacity + 1)`` would
-    overflow int64."""
+    ``K / (capacity + 1)`` for the ``K`` among ``units``, the powers of two below it and the sizes
+    of least rounding loss (:func:`_least_loss_scales`) whose root bound is smallest (the finest on
+    a tie: a finer scale is not always tighter, as the rounding loss depends on how the weights sit
+    against ``capacity / K``; the candidates cost about five tables); ``1 / ceil(capacity / units)``
+    when ``units * (capacity + 1)`` would overflow int64."""
     if capacity <= units:
         return 1, 1
     if units * (capacity + 1) >= 2**62:
@@ -287,7 +289,7 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     # DP order: by profit per byte, best first (the states then rise in profit early: good incumbents).
     order = np.lexsort((-w, -(p / w)))
     wo, po = w[order], p[order]
-    # Bound tables cost n x units work twice (and the scale and start solutions about 4 times):
+    # Bound tables cost n x units work twice (and the scale and start solutions about 7 times):
     # keep that near 3e8 cells on large n.
     units = max(1024, min(units, _WORK_CELLS // n))
     num, den = _pick_scale(wo, po, c, units)
