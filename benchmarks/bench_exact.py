@@ -2,7 +2,7 @@
 
 Instances: the ``l3gs`` suite's T=60 specs (``suite_specs("l3gs", sizes=[J], seeds=S)``: layered,
 L=4, bundled Lumos5G traces scaled to 11.8 Mbit/s, window starting at 60 s x seed), J=20 (five
-seeds) and J=200 (``--seeds-200``). Per instance:
+seeds), J=50 (``--seeds-50``, none by default) and J=200 (``--seeds-200``). Per instance:
 
 * methods ``exact``, ``ilp/highs``, ``ilp/cbc``, ``ilp/cpsat`` with the same time limit;
 * bounds: LP relaxation (HiGHS), Lagrangian by subgradient (started from the LP duals, Polyak
@@ -17,7 +17,7 @@ again, so deleting one method's records re-runs only that method); ``--report`` 
 ``exact.md`` (keeping the notes below its ``NOTES_MARK`` line), ``exact_summary.json`` and one
 gap-against-time PNG per size.
 
-    .venv/bin/python benchmarks/bench_exact.py [--time-limit 60] [--seeds-20 5] [--seeds-200 5]
+    .venv/bin/python benchmarks/bench_exact.py [--time-limit 60] [--seeds-20 5] [--seeds-50 5] [--seeds-200 5]
     .venv/bin/python benchmarks/bench_exact.py --report
 """
 
@@ -44,9 +44,9 @@ NOTES_MARK = "<!-- notes written by hand: kept by --report -->"
 HEURISTICS = ["rolling:bb", "rolling-future:bb", "mpc:3", "mpc:6", "progressive", "slope", "static"]
 
 
-def specs(seeds_20: int, seeds_200: int) -> list:
+def specs(seeds_20: int, seeds_200: int, seeds_50: int = 0) -> list:
     out = []
-    for J, seeds in ((20, seeds_20), (200, seeds_200)):
+    for J, seeds in ((20, seeds_20), (50, seeds_50), (200, seeds_200)):
         out += [s for s in suite_specs("l3gs", sizes=[J], seeds=seeds) if not s.single_slot]
     return out
 
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> None:
             print(rec["instance_id"], rec["label"], rec.get("status"), rec.get("objective"), rec.get("bound"),
                   rec.get("gap"), f"{rec.get('runtime_s', 0):.1f}s", flush=True)
 
-        for spec in specs(args.seeds_20, args.seeds_200):
+        for spec in specs(args.seeds_20, args.seeds_200, args.seeds_50):
             inst = spec.build()
             base = {"instance_id": spec.instance_id, "params": spec.params, "J": inst.J, "T": inst.T, "L": inst.L}
             best_obj = -math.inf
@@ -279,6 +279,7 @@ def main() -> int:
     ap.add_argument("--time-limit", type=float, default=60.0)
     ap.add_argument("--seeds-20", type=int, default=5)
     ap.add_argument("--seeds-200", type=int, default=5)
+    ap.add_argument("--seeds-50", type=int, default=0, help="J=50 instances (issue 23's next size; none by default)")
     ap.add_argument("--subgradient-s", type=float, default=15.0)
     ap.add_argument("--out", default="benchmarks/results")
     ap.add_argument("--report", action="store_true", help="only write exact.md, the summary and the plots")

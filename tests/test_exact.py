@@ -200,6 +200,40 @@ def test_column_generation_bound_at_least_as_tight_as_lp() -> None:
     assert ref * (1 - 1e-12) <= cg.bound <= lp * (1 + 1e-6)
 
 
+@pytest.mark.parametrize("fail_after", [0, 1, 3])
+def test_column_generation_stopped_by_its_master_keeps_a_valid_bound(monkeypatch, fail_after: int) -> None:
+    """A master LP that stops short of its optimum (time limit, undecided status: ``solve`` gives
+    None) ends column generation unconverged, with a bound still at least the ILP's optimum."""
+    from l3gs_opt.solvers.exact import colgen
+
+    rng = np.random.default_rng(11)
+    inst = random_instance(rng, T=8, J=5, L=3, tight=0.3)
+    data = gap_data(inst)
+    real, calls = colgen.Master.solve, []
+
+    def stopping(self):
+        calls.append(1)
+        return None if len(calls) > fail_after else real(self)
+
+    monkeypatch.setattr(colgen.Master, "solve", stopping)
+    cg = column_generation(data, ColumnPool(data), [], allowed=data.allowed, forced={}, incumbent=-math.inf)
+    assert not cg.converged and math.isfinite(cg.bound)
+    assert cg.bound >= solve(inst, "ilp").objective * (1 - 1e-12)
+
+
+def test_column_generation_master_gets_the_node_time_limit() -> None:
+    """The master's HiGHS carries the node's time limit (its own limit and the wall-clock
+    interrupt: :func:`new_highs`); without one, none."""
+    from l3gs_opt.solvers.exact.colgen import Master
+
+    rng = np.random.default_rng(7)
+    data = gap_data(random_instance(rng, T=8, J=5, L=3, tight=0.3))
+    timed = Master(data, ColumnPool(data), [], allowed=data.allowed, forced={}, big_m=1e6, time_limit_s=2.5)
+    free = Master(data, ColumnPool(data), [], allowed=data.allowed, forced={}, big_m=1e6)
+    assert timed.h.getOptionValue("time_limit")[1] == 2.5      # (status, value)
+    assert free.h.getOptionValue("time_limit")[1] > 1e9
+
+
 STIFF = {
     "utility_orders": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)),
                                        utility=10.0 ** rng.uniform(-9, 9, (4, 3, 2)),
