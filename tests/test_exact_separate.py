@@ -151,6 +151,19 @@ def test_lagrangian_bound_holds_at_any_multipliers(option: int) -> None:
         assert bound >= opt * (1 - 1e-12)
 
 
+def test_path_master_gets_the_node_time_limit() -> None:
+    """The path master's HiGHS carries the node's deadline (as Problem I's master); none without."""
+    from l3gs_opt.solvers.exact.separate_master import PathMaster, PathPool
+
+    rng = np.random.default_rng(5)
+    data = separate_data(_instance(rng, T=3, J=2, L=2, options=ALL_OPTIONS[0]))
+    must = np.zeros(data.K, dtype=np.int8)
+    timed = PathMaster(data, PathPool(data), allowed=data.allowed, must=must, time_limit_s=2.5)
+    free = PathMaster(data, PathPool(data), allowed=data.allowed, must=must)
+    assert timed.h.getOptionValue("time_limit")[1] == 2.5      # (status, value)
+    assert free.h.getOptionValue("time_limit")[1] > 1e9
+
+
 # -- stiff inputs -----------------------------------------------------------------------------------
 
 def test_zero_bandwidth_slot_and_a_version_that_never_fits() -> None:

@@ -90,13 +90,15 @@ class NodeResult:
 class PathMaster:
     """The restricted master LP of one node, built from the pool's compatible paths."""
 
-    def __init__(self, data: SeparateData, pool: PathPool, *, allowed: np.ndarray, must: np.ndarray) -> None:
+    def __init__(self, data: SeparateData, pool: PathPool, *, allowed: np.ndarray, must: np.ndarray,
+                 time_limit_s: float | None = None) -> None:
         import highspy
 
         from l3gs_opt.models.backends.highs import new_highs
 
         self.data, self.pool, self.allowed, self.must = data, pool, allowed, must
-        self.h = new_highs()
+        # The node's deadline, as for Problem I's master (colgen.Master).
+        self.h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
         self.inf = highspy.kHighsInf
         K, T = data.K, data.T
         # Objective and rows scaled so that coefficients are at most ~1 (values 1e-6..1e6 and
@@ -188,7 +190,8 @@ def path_generation(data: SeparateData, pool: PathPool, *, allowed: np.ndarray, 
                     smoothing: float = 0.5, close: float = 0.0) -> NodeResult:
     """Column generation at a node until converged, closed (bound <= incumbent + ``close``),
     stalled or out of time (``deadline``: ``time.perf_counter()`` seconds)."""
-    master = PathMaster(data, pool, allowed=allowed, must=must)
+    master = PathMaster(data, pool, allowed=allowed, must=must,
+                        time_limit_s=None if deadline is None else deadline - time.perf_counter())
     best, best_pi = start_bound, start_pi
     value, lam, converged, it = -math.inf, {}, False, 0
     history: list[float] = []
