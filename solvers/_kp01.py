@@ -230,14 +230,9 @@ def _least_loss_scales(w: np.ndarray, den: int, units: int, count: int = _LOSS_S
     almost nothing. Scored in float64 on at most :data:`_LOSS_SAMPLE` items spread over the weight
     order (a ranking only: the bound itself is exact whatever ``K``)."""
     lo = max(1, units // 4)
-    ks = np.arange(lo, units + 1, dtype=np.float64)
     sample = np.sort(w)[np.linspace(0, len(w) - 1, min(len(w), _LOSS_SAMPLE)).astype(np.int64)]
-    q = sample.astype(np.float64) / den
-    loss = np.empty(len(ks))
-    step = max(1, (1 << 22) // len(q))
-    for a in range(0, len(ks), step):
-        x = ks[a:a + step, None] * q[None, :]
-        loss[a:a + step] = (x - np.floor(x)).sum(axis=1) / ks[a:a + step]
+    loss = _kernels().rounding_loss(sample.astype(np.float64) / den, lo, units)
+    ks = np.arange(lo, units + 1, dtype=np.float64)
     best = np.lexsort((-ks, loss))[:count]
     return [int(ks[i]) for i in best]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["stage"]
+__all__ = ["stage", "rounding_loss"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -89,3 +89,18 @@ def stage(W: np.ndarray, P: np.ndarray, M: np.ndarray, A: np.ndarray, w: int, p:
         oA[k] = ca
         k += 1
     return oW[:k].copy(), oP[:k].copy(), oM[:k].copy(), oA[:k].copy()
+
+
+@numba.njit(cache=True, nogil=True)
+def rounding_loss(q: np.ndarray, lo: int, hi: int) -> np.ndarray:  # pragma: no cover
+    """``out[K - lo] = sum_i frac(K q_i) / K`` for ``K = lo..hi``: the bytes per unit of capacity
+    that rounding ``K q_i`` down loses, summed over the items (``q = w / (capacity + 1)``; float64,
+    a ranking only: :func:`l3gs_opt.solvers._kp01._least_loss_scales`)."""
+    out = np.empty(hi - lo + 1)
+    for K in range(lo, hi + 1):
+        s = 0.0
+        for qi in q:
+            x = K * qi
+            s += x - np.floor(x)
+        out[K - lo] = s / K
+    return out
