@@ -231,10 +231,9 @@ def _least_loss_scales(w: np.ndarray, den: int, units: int, count: int = _LOSS_S
     order (a ranking only: the bound itself is exact whatever ``K``)."""
     lo = max(1, units // 4)
     sample = np.sort(w)[np.linspace(0, len(w) - 1, min(len(w), _LOSS_SAMPLE)).astype(np.int64)]
-    loss = _kernels().rounding_loss(sample.astype(np.float64) / den, lo, units)
-    ks = np.arange(lo, units + 1, dtype=np.float64)
-    best = np.lexsort((-ks, loss))[:count]
-    return [int(ks[i]) for i in best]
+    loss = _kernels().rounding_loss(sample.astype(np.float64) / den, lo, units)   # [K - lo]
+    best = np.lexsort((-np.arange(len(loss)), loss))[:count]
+    return [lo + int(i) for i in best]
 
 
 def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_limit_s: float | None = None,

@@ -93,9 +93,9 @@ def stage(W: np.ndarray, P: np.ndarray, M: np.ndarray, A: np.ndarray, w: int, p:
 
 @numba.njit(cache=True, nogil=True)
 def rounding_loss(q: np.ndarray, lo: int, hi: int) -> np.ndarray:  # pragma: no cover
-    """``out[K - lo] = sum_i frac(K q_i) / K`` for ``K = lo..hi``: the bytes per unit of capacity
-    that rounding ``K q_i`` down loses, summed over the items (``q = w / (capacity + 1)``; float64,
-    a ranking only: :func:`l3gs_opt.solvers._kp01._least_loss_scales`)."""
+    """``out[K - lo] = sum_i frac(K q_i) / K`` for ``K = lo..hi`` with ``q = w / (capacity + 1)``:
+    the bytes that rounding ``K q_i`` down loses, summed over the items, over ``capacity + 1``
+    (float64, a ranking only: :func:`l3gs_opt.solvers._kp01._least_loss_scales`)."""
     out = np.empty(hi - lo + 1)
     for K in range(lo, hi + 1):
         s = 0.0

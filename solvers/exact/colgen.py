@@ -283,11 +283,13 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
         best = min(best, best_val.bound)
     history: list[float] = []
     value, xbar, converged, it = -math.inf, np.zeros((data.n, data.T)), False, 0
+    master_stopped = False   # a master solve stopped short of its optimum (time limit, undecided)
     for it in range(1, max_iterations + 1):
         if best_val is not None and time_limit_s is not None and time.perf_counter() - started > time_limit_s:
             break
         solved = master.solve()
         if solved is None:
+            master_stopped = True
             break
         value, mult, lam = solved
         xbar = master.xbar(lam)
@@ -339,7 +341,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
             break
         master.add_columns(added)
     if best_val is None:   # stopped before pricing once: price at the last duals
-        solved = master.solve()
+        solved = None if master_stopped else master.solve()
         if solved is not None:
             value, mult, lam = solved
             xbar = master.xbar(lam)
