@@ -116,7 +116,7 @@ def test_ilp_other_backends_equal_brute_force(backend, inst):
 
 
 @settings(max_examples=25, **SETTINGS)
-@given(signed_instances(options=None).filter(lambda i: i.options.budget == "per_slot"))
+@given(signed_instances(options=None))
 def test_exact_equals_brute_force(inst):
     best = solve(inst, "brute").objective
     sol = solve(inst, "exact", time_limit_s=20)
@@ -180,7 +180,7 @@ def test_seeded_tight_instances_every_method(options):
                         held=held, options=options)
         best = solve(inst, "brute").objective
         exact = [("ilp", dict(backend="highs", form=f, presolve=p)) for f in ("standard", "gap") for p in (True, False)]
-        exact += [("exact", dict(time_limit_s=20))] if options.budget == "per_slot" else []
+        exact += [("exact", dict(time_limit_s=20))]
         exact += [("link-dp", {})] if options.budget == "cumulative" and options.same_slot_layers else []
         for method, kw in exact:
             sol = solve(inst, method, **kw)

@@ -91,6 +91,28 @@ def new_highs(*, time_limit_s: float | None = None, mip: bool = False, proof: bo
     return h
 
 
+def sparse_lp(matrix: Any, *, col_cost: np.ndarray, col_lower: np.ndarray, col_upper: np.ndarray,
+              row_lower: np.ndarray, row_upper: np.ndarray, integer: bool = False) -> highspy.HighsLp:
+    """A ``HighsLp`` (minimise) from a scipy sparse matrix and bound arrays; infinite bounds
+    (numpy's) become HiGHS's; ``integer`` makes every column integer."""
+    A = matrix.tocsc()
+    inf = highspy.kHighsInf
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = int(A.shape[1]), int(A.shape[0])
+    lp.col_cost_ = np.asarray(col_cost, dtype=np.float64)
+    lp.col_lower_ = np.where(np.isfinite(col_lower), col_lower, -inf)
+    lp.col_upper_ = np.where(np.isfinite(col_upper), col_upper, inf)
+    lp.row_lower_ = np.where(np.isfinite(row_lower), row_lower, -inf)
+    lp.row_upper_ = np.where(np.isfinite(row_upper), row_upper, inf)
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = A.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = A.indices.astype(np.int32)
+    lp.a_matrix_.value_ = A.data
+    if integer:
+        lp.integrality_ = [highspy.HighsVarType.kInteger] * lp.num_col_
+    return lp
+
+
 def version() -> str:
     return f"highspy {_pkg_version('highspy')}"
 

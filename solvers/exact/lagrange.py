@@ -21,8 +21,9 @@ knapsack is solved in integers it is at least as tight as the LP relaxation at i
 multipliers.
 
 Options: ``availability="next_slot"`` shifts ``P`` by one slot, ``same_slot_layers=False`` sets
-``d = 1``. The ``cumulative`` budget couples the slots, so there is no per-slot knapsack: such
-instances are rejected with a :class:`~l3gs_opt.errors.SolveError`. The separate representation
+``d = 1``. The ``cumulative`` budget couples the slots, so Problem A has no per-slot knapsack:
+``gap_data`` rejects it (:mod:`.cumulative_data` writes such instances over "arrived by slot t",
+where it has). The separate representation
 (Problems II/IV, whose objective is a max over versions) is not Problem A: ``exact`` solves it
 over per-object paths (:mod:`.separate`).
 """
@@ -42,15 +43,43 @@ from l3gs_opt.problem.presolve import presolve
 from .. import _mckp
 from . import pricing
 
-__all__ = ["GapData", "gap_data", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
+__all__ = ["ChunkItems", "GapData", "gap_data", "chunk_arrays", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
            "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
            "chunk_profits"]
 
 _EPS = np.finfo(np.float64).eps
 
 
+class ChunkItems:
+    """Chunks as items ``i`` (object ``item_j[i]``, layer ``item_l[i]``, ``cost[i]`` bytes): the
+    assignment form of a schedule (slot per item, -1 = never) and back."""
+
+    item_j: np.ndarray
+    item_l: np.ndarray
+    cost: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.cost.shape[0])
+
+    def arrivals(self, assign: np.ndarray) -> list[tuple[int, int, int]]:
+        """Arrivals ``(j, l, t)`` of an assignment."""
+        return [(int(self.item_j[i]), int(self.item_l[i]), int(assign[i])) for i in np.nonzero(assign >= 0)[0]]
+
+    def assignment(self, arrivals) -> np.ndarray:
+        """The assignment of a schedule; chunks presolve dropped are ignored (they add nothing and
+        need no bytes in any optimal schedule)."""
+        index = {(int(j), int(l)): i for i, (j, l) in enumerate(zip(self.item_j, self.item_l))}
+        out = np.full(self.n, -1, dtype=np.int64)
+        for j, l, t in arrivals:
+            i = index.get((int(j), int(l)))
+            if i is not None:
+                out[i] = int(t)
+        return out
+
+
 @dataclass(frozen=True, eq=False)
-class GapData:
+class GapData(ChunkItems):
     """Problem A of a layered instance over the chunks presolve keeps.
 
     Attributes
@@ -87,25 +116,6 @@ class GapData:
     constant: float
     stats: dict = field(default_factory=dict)
 
-    @property
-    def n(self) -> int:
-        return int(self.cost.shape[0])
-
-    def arrivals(self, assign: np.ndarray) -> list[tuple[int, int, int]]:
-        """Arrivals ``(j, l, t)`` of an assignment (slot per item, -1 = never)."""
-        return [(int(self.item_j[i]), int(self.item_l[i]), int(assign[i])) for i in np.nonzero(assign >= 0)[0]]
-
-    def assignment(self, instance: Instance, arrivals) -> np.ndarray:
-        """The assignment (slot per item, -1 = never) of a schedule; chunks presolve dropped are
-        ignored (they add nothing and need no bytes in any optimal schedule)."""
-        index = {(int(j), int(l)): i for i, (j, l) in enumerate(zip(self.item_j, self.item_l))}
-        out = np.full(self.n, -1, dtype=np.int64)
-        for j, l, t in arrivals:
-            i = index.get((int(j), int(l)))
-            if i is not None:
-                out[i] = int(t)
-        return out
-
 
 def check_supported(instance: Instance, method: str = "exact") -> None:
     """Raise :class:`SolveError` for what the per-slot decomposition cannot express."""
@@ -113,19 +123,17 @@ def check_supported(instance: Instance, method: str = "exact") -> None:
         raise SolveError(f"method {method!r}: Problem A is the layered form; the separate representation (Problem "
                          f"{instance.problem}) is solved over per-object paths (solvers/exact/separate.py)")
     if instance.options.budget == "cumulative":
-        raise SolveError(f"method {method!r}: budget 'cumulative' couples all slots, so the problem does not split "
-                         "into per-slot knapsacks; use method 'ilp'")
+        raise SolveError(f"method {method!r}: budget 'cumulative' couples all slots, so Problem A does not split "
+                         "into per-slot knapsacks; its arrived-by form does (solvers/exact/cumulative.py)")
 
 
-def gap_data(instance: Instance) -> GapData:
-    """Problem A of a layered, per-slot-budget instance (see the module doc).
+def chunk_arrays(instance: Instance) -> tuple:
+    """The chunks presolve keeps of a layered instance, for either budget.
 
-    Raises
-    ------
-    SolveError
-        Separate representation or cumulative budget (see :func:`check_supported`).
+    Returns ``(reduction, item_j, item_l, lower, upper, allowed, shown)``: ``allowed`` [n, T]
+    the slots a chunk may arrive in, ``shown`` [n, T] the value of "arrived by t" (presolve's
+    gain shifted by the availability option).
     """
-    check_supported(instance)
     inst = instance
     red = presolve(inst)
     T = inst.T
@@ -133,7 +141,6 @@ def gap_data(instance: Instance) -> GapData:
     gain = np.moveaxis(red.gain, 0, -1)                    # [J, L, T]: value of "shown at t"
     shown = np.zeros_like(gain)
     shown[:, :, :T - shift] = gain[:, :, shift:]          # value of "arrived by t"
-    future = np.flip(np.cumsum(np.flip(shown, axis=2), axis=2), axis=2)
     jj, ll = np.nonzero(red.active)
     n = len(jj)
     index = -np.ones((inst.J, inst.L), dtype=np.int64)
@@ -146,9 +153,24 @@ def gap_data(instance: Instance) -> GapData:
     # lower layer is neither is never deliverable.
     orphan = (ll > 0) & (lower < 0) & ~inst.held[jj, np.maximum(ll - 1, 0)]
     allowed[orphan] = False
-    profit = np.where(allowed, future[jj, ll, :], 0.0)
-    return GapData(T=T, item_j=jj.astype(np.int64), item_l=ll.astype(np.int64), cost=inst.cost[jj, ll].astype(np.int64),
-                   profit=profit, allowed=allowed, lower=lower.astype(np.int64), upper=upper,
+    return red, jj.astype(np.int64), ll.astype(np.int64), lower.astype(np.int64), upper, allowed, shown[jj, ll, :]
+
+
+def gap_data(instance: Instance) -> GapData:
+    """Problem A of a layered, per-slot-budget instance (see the module doc).
+
+    Raises
+    ------
+    SolveError
+        Separate representation or cumulative budget (see :func:`check_supported`).
+    """
+    check_supported(instance)
+    inst = instance
+    red, jj, ll, lower, upper, allowed, shown = chunk_arrays(inst)
+    future = np.flip(np.cumsum(np.flip(shown, axis=1), axis=1), axis=1)
+    profit = np.where(allowed, future, 0.0)
+    return GapData(T=inst.T, item_j=jj, item_l=ll, cost=inst.cost[jj, ll].astype(np.int64),
+                   profit=profit, allowed=allowed, lower=lower, upper=upper,
                    strict=not inst.options.same_slot_layers, budget=inst.bandwidth.astype(np.int64),
                    constant=red.constant, stats=dict(red.stats))
 
@@ -435,23 +457,13 @@ def lp_multipliers(data: GapData, *, time_limit_s: float | None = None
         up_b.append(np.zeros(pu.size))
         r += pu.size
     A = sparse.csc_matrix((np.concatenate(vals), (np.concatenate(rows_i), np.concatenate(cols_i))), shape=(r, 2 * nx))
-    lp = highspy.HighsLp()
-    lp.num_col_, lp.num_row_ = 2 * nx, r
-    lp.col_cost_ = np.concatenate([-data.profit.ravel(), np.zeros(nx)])
-    inf = highspy.kHighsInf
-    # Y is free: its bounds are implied by the rows, and a bound must not take over a row's dual.
-    lp.col_lower_ = np.concatenate([np.zeros(nx), np.full(nx, -inf)])
-    lp.col_upper_ = np.concatenate([np.where(data.allowed.ravel(), 1.0, 0.0), np.full(nx, inf)])
-    lower = np.concatenate(lo_b)
-    upper = np.concatenate(up_b)
-    lp.row_lower_ = np.where(np.isfinite(lower), lower, -inf)
-    lp.row_upper_ = np.where(np.isfinite(upper), upper, inf)
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = A.indptr.astype(np.int32)
-    lp.a_matrix_.index_ = A.indices.astype(np.int32)
-    lp.a_matrix_.value_ = A.data
-    from l3gs_opt.models.backends.highs import new_highs
+    from l3gs_opt.models.backends.highs import new_highs, sparse_lp
 
+    # Y is free: its bounds are implied by the rows, and a bound must not take over a row's dual.
+    lp = sparse_lp(A, col_cost=np.concatenate([-data.profit.ravel(), np.zeros(nx)]),
+                   col_lower=np.concatenate([np.zeros(nx), np.full(nx, -np.inf)]),
+                   col_upper=np.concatenate([np.where(data.allowed.ravel(), 1.0, 0.0), np.full(nx, np.inf)]),
+                   row_lower=np.concatenate(lo_b), row_upper=np.concatenate(up_b))
     h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
     h.passModel(lp)
     h.run()

@@ -41,8 +41,8 @@ only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` sa
 the answer carries. Supported: layered instances (Problems I, III) with per-slot budgets, either
 availability, same-slot or strict layers. Separate instances (Problems II/IV) go to
 :mod:`.separate` (per-object paths: path pricing, branch-and-price beside a reduced HiGHS model).
-Rejected with a :class:`~l3gs_opt.errors.SolveError`: the ``cumulative`` budget for layered
-instances (see :func:`.lagrange.check_supported`); use ``ilp`` or ``link-dp`` for those.
+Layered instances with the ``cumulative`` budget go to :mod:`.cumulative` (the arrived-by form:
+per-slot knapsacks again, fixing, HiGHS on what is left).
 
 Signed layer utilities (``dU < 0``) need nothing special: Problem A's profits ``P[i,t]`` are then
 signed too, the Lagrangian bound holds for any sign (each slot's knapsack takes only positive
@@ -66,6 +66,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
+from .clock import Clock
 from .colgen import ColumnPool, column_generation
 from .sides import run_sides
 from .starts import check_starts, run_start
@@ -392,7 +393,7 @@ def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadl
         if left is not None and left <= 0:
             break
         sol = run_start(name, instance, left)
-        assign = data.assignment(instance, sol.arrivals)
+        assign = data.assignment(sol.arrivals)
         if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
             continue
         value = assignment_value(data, assign)
@@ -419,8 +420,8 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
     Raises
     ------
     SolveError
-        ``slot`` given, cumulative budget (layered). Separate instances (Problems II/IV) go to
-        :func:`.separate.solve_separate`.
+        ``slot`` given. Separate instances (Problems II/IV) go to :func:`.separate.solve_separate`,
+        layered ones with the cumulative budget to :func:`.cumulative.solve_cumulative`.
     """
     started = time.perf_counter()
     if not instance.layered:
@@ -431,6 +432,11 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                               max_nodes=max_nodes, branching=branching)
     if slot is not None:
         raise SolveError("method 'exact' schedules the whole horizon: slot does not apply (use 'bb' for one slot)")
+    if instance.options.budget == "cumulative":
+        # One sequential link: the arrived-by form (solvers/exact/cumulative.py).
+        from .cumulative import solve_cumulative
+
+        return solve_cumulative(instance, time_limit_s=time_limit_s, heuristics=heuristics)
     if branching not in BRANCHING:
         raise SolveError(f"branching = {branching!r} is not one of {', '.join(BRANCHING)}")
     search = _Search(instance, started=started, time_limit_s=time_limit_s, max_nodes=max_nodes, lns_width=lns_width,
@@ -445,7 +451,7 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
     return search.finish()
 
 
-class _Search:
+class _Search(Clock):
     """One run of ``exact``: the incumbent ``assign`` (value ``z``), the best bound and its kind,
     the column pool and the Lagrangian certificates met, and one method per phase (start, root,
     repair and LNS at the root, the MIP side, the price side, finish). Only the MIP side may run
@@ -470,17 +476,6 @@ class _Search:
         self.certificates: list[LagrangeValue] = []
         self.assign = np.full(data.n, -1, dtype=np.int64)
         self.z = assignment_value(data, self.assign)
-
-    # -- clocks ----------------------------------------------------------------------------------
-    def now(self) -> float:
-        return time.perf_counter() - self.started
-
-    def out_of_time(self) -> bool:
-        return self.deadline is not None and time.perf_counter() >= self.deadline
-
-    def left(self) -> float | None:
-        """Seconds to the deadline (None without a limit)."""
-        return None if self.deadline is None else self.deadline - time.perf_counter()
 
     def ls_deadline(self) -> float | None:
         if self.deadline is None:

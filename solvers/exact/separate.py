@@ -49,6 +49,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap
 
+from .clock import Clock
 from .separate_data import (Path, lagrangian_bound, path_bytes, path_value, price_paths, schedule_feasible,
                             separate_data)
 from .separate_master import PathPool, path_generation
@@ -132,7 +133,7 @@ def solve_separate(instance: Instance, *, slot: int | None = None, time_limit_s:
     return search.finish()
 
 
-class _PathSearch:
+class _PathSearch(Clock):
     """One run: the incumbent (one path per object, value ``z``), the best bound and its kind, the
     path pool, and one method per phase."""
 
@@ -155,16 +156,7 @@ class _PathSearch:
         self.tie_price = 1e-12 * (float(data.show[:, :, -1].sum(axis=0).max(initial=0.0)) /
                                   max(float(data.rhs.max(initial=1)), 1.0)) if data.K else 0.0
 
-    # -- clocks --------------------------------------------------------------------------------
-    def now(self) -> float:
-        return time.perf_counter() - self.started
-
-    def left(self) -> float | None:
-        return None if self.deadline is None else self.deadline - time.perf_counter()
-
-    def out_of_time(self) -> bool:
-        return self.deadline is not None and time.perf_counter() >= self.deadline
-
+    # -- clocks: Clock; and the closing test
     def closed(self, bound: float) -> bool:
         return bound <= self.z + CLOSE_TOL * max(abs(bound), 1e-300)
 

@@ -1,0 +1,361 @@
+"""``exact`` for Problems I/III under the ``cumulative`` budget (one sequential link).
+
+The per-slot decomposition of :mod:`.search` needs per-slot budgets; under the cumulative budget
+the slots are coupled, but in the arrived-by form (:mod:`.cumulative_data`) each budget row
+holds one slot's variables again, so the same recipe applies:
+
+1. **Primal start**: the best of the start heuristics (``rolling-future:bb``, ``slope``,
+   ``rolling:bb``), and the LP's order (chunks the LP holds at the horizon, sent in the order of
+   their LP arrival, each in the first slot the link's bytes allow).
+2. **Bound**: the LP relaxation of the arrived-by model (HiGHS); its duals on the linking rows
+   are the multipliers of the Lagrangian bound with one exact 0-1 knapsack per slot (capacity:
+   the bytes up to that slot), improved by subgradient steps for ``SUBGRADIENT_SHARE`` of the
+   time left.
+3. **Reduced-cost fixing**: every Lagrangian value met narrows each chunk's arrival window
+   (:func:`.cumulative_data.fix_windows`); an empty window proves the incumbent optimal.
+4. **Branch-and-cut**: HiGHS on the arrived-by model over those windows, cut off at the
+   incumbent and started from it; its schedules are checked in exact integer bytes. When it finds
+   a schedule at which the fixing, redone, would drop at least ``1 - RESTART_SHRINK`` of the
+   variables, it is stopped and restarted on the smaller model.
+
+A time limit returns the best schedule with the smaller of the Lagrangian bound and HiGHS's dual
+bound, status ``time_limit``; ``optimal`` only when the certified gap is at most ``GAP_TOL``.
+Any sign of layer utility: every value is summed exactly from the instance, the bound holds for
+any sign, and the LP order is only one more candidate schedule.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
+
+from .clock import Clock
+from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, link_data, link_lagrangian,
+                              link_subgradient, schedule_feasible, schedule_value)
+from .starts import check_starts, run_start
+
+__all__ = ["solve_cumulative", "START_HEURISTICS", "arrived_by_model"]
+
+START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb")
+#: Share of the time left after the LP that subgradient steps may take (and at most this many seconds).
+SUBGRADIENT_SHARE, SUBGRADIENT_MAX_S = 0.15, 10.0
+#: HiGHS is stopped and restarted when fixing at its new schedule keeps at most this share.
+RESTART_SHRINK = 0.9
+#: Seconds kept back from HiGHS's limit (it overruns it a little).
+MIP_MARGIN_S = 0.5
+#: Relative slack on HiGHS's dual bound (its LP tolerances).
+MIP_BOUND_SLACK = 1e-9
+
+
+def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
+    """The arrived-by model over the windows as a ``highspy.HighsLp`` (minimising minus the value): ``(lp, var, rows)`` with
+    ``var`` [n, T] the column of ``z[i,t]`` (-1: none) and ``rows`` the first row of each family
+    (``"budget"``, ``"stay"``, ``"order"``) plus the (chunk, slot) of every linking row."""
+    from scipy import sparse
+
+    from l3gs_opt.models.backends.highs import sparse_lp
+
+    n, T, d = data.n, data.T, data.d
+    first, by = windows.first, windows.by
+    tt = np.arange(T)
+    has_var = tt[None, :] >= first[:, None]
+    ii, ts = np.nonzero(has_var)
+    var = -np.ones((n, T), dtype=np.int64)
+    var[ii, ts] = np.arange(len(ii))
+    nv = len(ii)
+    r_i, c_i, v_i, lo_b, up_b = [], [], [], [], []
+    r = 0
+    # Budget rows scaled by their right-hand side (bytes up to 1e12: coefficients <= 1).
+    cap = data.capacity.astype(np.float64)
+    scale = np.where(cap > 0, cap, 1.0)
+    r_i.append(r + ts)
+    c_i.append(var[ii, ts])
+    v_i.append(data.cost[ii] / scale[ts])
+    lo_b.append(np.full(T, -np.inf))
+    up_b.append(cap / scale)
+    r += T
+    # Arrived stays arrived: z[i,t] - z[i,t+1] <= 0.
+    stay_i, stay_t = np.nonzero(has_var[:, :-1])
+    r_stay = r
+    rows = r + np.arange(len(stay_i))
+    r_i += [rows, rows]
+    c_i += [var[stay_i, stay_t], var[stay_i, stay_t + 1]]
+    v_i += [np.ones(len(rows)), -np.ones(len(rows))]
+    lo_b.append(np.full(len(rows), -np.inf))
+    up_b.append(np.zeros(len(rows)))
+    r += len(rows)
+    # Layer order: z[u,t] - z[lo,t-d] <= 0 (no column for z[lo,t-d]: z[u,t] <= 0).
+    has_lo = (data.lower >= 0)[:, None] & has_var
+    ord_i, ord_t = np.nonzero(has_lo)
+    r_order = r
+    rows = r + np.arange(len(ord_i))
+    lo_col = np.where(ord_t - d >= 0, var[data.lower[ord_i], np.maximum(ord_t - d, 0)], -1)
+    r_i.append(rows)
+    c_i.append(var[ord_i, ord_t])
+    v_i.append(np.ones(len(rows)))
+    ok = lo_col >= 0
+    r_i.append(rows[ok])
+    c_i.append(lo_col[ok])
+    v_i.append(-np.ones(int(ok.sum())))
+    lo_b.append(np.full(len(rows), -np.inf))
+    up_b.append(np.zeros(len(rows)))
+    r += len(rows)
+    A = sparse.csc_matrix((np.concatenate(v_i), (np.concatenate(r_i), np.concatenate(c_i))), shape=(r, nv))
+    lp = sparse_lp(A, col_cost=-data.shown[ii, ts], col_lower=np.where(ts >= by[ii], 1.0, 0.0),
+                   col_upper=np.ones(nv), row_lower=np.concatenate(lo_b), row_upper=np.concatenate(up_b),
+                   integer=not relax)
+    families = {"budget": 0, "stay": r_stay, "order": r_order, "stay_rows": (stay_i, stay_t),
+                "order_rows": (ord_i, ord_t), "end": r}
+    return lp, var, families
+
+
+def _lp_duals(data: LinkData, windows: Windows, time_limit_s: float | None
+              ) -> tuple[float | None, LinkMultipliers | None, np.ndarray | None]:
+    """LP value, its duals on the linking rows as multipliers, and ``z`` [n, T] (None: no optimal LP)."""
+    import highspy
+
+    from l3gs_opt.models.backends.highs import new_highs
+
+    lp, var, rows = arrived_by_model(data, windows, relax=True)
+    if lp.num_col_ == 0:
+        return data.constant, LinkMultipliers.zeros(data), np.zeros((data.n, data.T))
+    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
+    h.passModel(lp)
+    h.run()
+    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        return None, None, None
+    sol = h.getSolution()
+    dual = np.maximum(0.0, -np.asarray(sol.row_dual))
+    mult = LinkMultipliers.zeros(data)
+    si, st = rows["stay_rows"]
+    mult.alpha[si, st] = dual[rows["stay"]:rows["stay"] + len(si)]
+    oi, ot = rows["order_rows"]
+    mult.beta[oi, ot] = dual[rows["order"]:rows["end"]]
+    col = np.asarray(sol.col_value)
+    z = np.zeros((data.n, data.T))
+    on = var >= 0
+    z[on] = col[var[on]]
+    return data.constant - float(h.getInfo().objective_function_value), mult, z
+
+
+def lp_order(data: LinkData, z: np.ndarray) -> np.ndarray:
+    """A schedule from LP values ``z`` [n, T]: the chunks held at the horizon (``z >= 1/2``), sent
+    in the order of their LP arrival (``sum_t (1 - z[i,t])``; a layer after the one below it), each
+    in the first slot whose bytes cover it and everything sent before it."""
+    n, T = data.n, data.T
+    assign = np.full(n, -1, dtype=np.int64)
+    if n == 0:
+        return assign
+    late = (1.0 - np.clip(z, 0.0, 1.0)).sum(axis=1)
+    take = z[:, -1] >= 0.5
+    sent = 0
+    for i in np.lexsort((data.item_l, late)):
+        if not take[i]:
+            continue
+        lo = data.lower[i]
+        if lo >= 0 and assign[lo] < 0:
+            continue
+        c = int(data.cost[i])
+        t = max(int(np.searchsorted(data.capacity, sent + c, side="left")), int(data.first[i]))
+        if lo >= 0:
+            t = max(t, int(assign[lo]) + data.d)
+        if t >= T:
+            continue
+        assign[i] = t
+        sent += c
+    return assign
+
+
+def solve_cumulative(instance: Instance, *, time_limit_s: float | None = None,
+                     heuristics: tuple[str, ...] | None = None, **_ignored: Any) -> Solution:
+    """Solve a layered, cumulative-budget instance exactly (see the module doc), or stop at
+    ``time_limit_s`` seconds with the best schedule and a valid bound."""
+    run = _Run(instance, time_limit_s)
+    run.start(START_HEURISTICS if heuristics is None else tuple(heuristics))
+    if run.data.n and not run.proven():
+        run.root()
+        if not run.proven() and not run.out_of_time():
+            run.mip()
+    return run.finish()
+
+
+class _Run(Clock):
+    """One run: the incumbent ``assign`` (value ``z``), the bound and its kind, the windows."""
+
+    def __init__(self, instance: Instance, time_limit_s: float | None) -> None:
+        self.instance = instance
+        self.started = time.perf_counter()
+        self.deadline = None if time_limit_s is None else self.started + float(time_limit_s)
+        self.data = data = link_data(instance)
+        self.assign = np.full(data.n, -1, dtype=np.int64)
+        self.z = schedule_value(data, self.assign)
+        self.bound, self.bound_kind = (self.z, "no chunk can arrive") if data.n == 0 else (math.inf, "none")
+        self.windows = Windows(data.first.copy(), np.full(data.n, data.T, dtype=np.int64), closed=False)
+        self.lv = None
+        self.trace: list[tuple[float, float, float]] = []
+        self.hit_limit = False
+        self.details: dict[str, Any] = {"items": data.n, "slots": data.T, "presolve": dict(data.stats),
+                                        "form": "arrived-by (cumulative budget)"}
+
+    def proven(self) -> bool:
+        # A tenth of GAP_TOL (as the layered search's CLOSE_TOL): finish_solution re-sums the
+        # objective from the instance, and its last bit may differ from ours.
+        gap = relative_gap(self.z, self.bound, utility_scale(self.instance))
+        return gap is not None and gap <= 0.1 * GAP_TOL
+
+    def offer(self, assign: np.ndarray, source: str) -> None:
+        if schedule_feasible(self.data, assign):
+            value = schedule_value(self.data, assign)
+            if value > self.z:
+                self.assign, self.z = assign, value
+                self.details["incumbent_from"] = source
+
+    def set_bound(self, value: float, kind: str) -> None:
+        if value < self.bound:
+            self.bound, self.bound_kind = max(value, self.z), kind
+        self.trace.append((self.now(), self.z, self.bound))
+
+    def start(self, heuristics: tuple[str, ...]) -> None:
+        check_starts(heuristics)
+        values = {}
+        for name in heuristics:
+            left = self.left()
+            if left is not None and left <= 0:
+                break
+            sol = run_start(name, self.instance, left)
+            assign = self.data.assignment(sol.arrivals)
+            values[name] = schedule_value(self.data, assign)
+            self.offer(assign, name)
+        self.details["start_values"] = values
+        self.trace.append((self.now(), self.z, self.bound))
+
+    def fix(self, lv) -> None:
+        self.windows = fix_windows(self.data, lv, self.z, self.windows.first, self.windows.by)
+        if self.windows.closed:
+            self.set_bound(self.z, "Lagrangian reduced-cost fixing: no arrival window left")
+
+    def root(self) -> None:
+        data = self.data
+        lp_value, mult, zlp = _lp_duals(data, self.windows, self.left())
+        if mult is None:
+            self.hit_limit = self.out_of_time()
+            return
+        self.details["lp_bound"] = lp_value
+        self.offer(lp_order(data, zlp), "lp order")
+        deadline = None if self.deadline is None else self.deadline
+        lv = link_lagrangian(data, mult, first=self.windows.first, deadline=deadline)
+        self.details["lagrangian_at_lp_duals"] = lv.bound
+        self.set_bound(lv.bound, "Lagrangian (per-slot knapsacks at the LP duals)")
+        self.fix(lv)
+        if self.proven() or self.windows.closed:
+            return
+        left = self.left()
+        budget = SUBGRADIENT_MAX_S if left is None else min(SUBGRADIENT_MAX_S, SUBGRADIENT_SHARE * left)
+        best, _ = link_subgradient(data, mult, target=self.z, time_limit_s=budget, first=self.windows.first)
+        self.details["lagrangian_subgradient"] = best.bound
+        self.set_bound(best.bound, "Lagrangian (per-slot knapsacks, subgradient from the LP duals)")
+        self.lv = best
+        self.fix(best)
+        self.details["windows_after_root"] = self.variables()
+
+    def variables(self) -> int:
+        return int(np.maximum(self.data.T - self.windows.first, 0).sum())
+
+    def mip(self) -> None:
+        runs = self.details.setdefault("mip_runs", [])
+        while not self.proven() and not self.windows.closed:
+            left = self.left()
+            if left is not None:
+                left -= MIP_MARGIN_S
+                if left <= 0:
+                    self.hit_limit = True
+                    return
+            size = self.variables()
+            z_before = self.z
+            outcome, assign, dual = self._mip_once(left, size)
+            runs.append({"outcome": outcome, "variables": size, "bound": dual, "seconds": self.now()})
+            if assign is not None:
+                self.offer(assign, "highs")
+            if outcome == "optimal":
+                self.set_bound(self.z, "Lagrangian fixing, then HiGHS on the arrived-by model (cut off at the "
+                                       "incumbent): closed")
+                return
+            self.set_bound(max(z_before, dual), "HiGHS dual bound on the arrived-by model after fixing")
+            if outcome != "restart":
+                self.hit_limit = True
+                return
+            if self.lv is not None:
+                self.fix(self.lv)
+
+    def _mip_once(self, time_limit_s: float | None, size: int) -> tuple[str, np.ndarray | None, float]:
+        """HiGHS on the model over the windows, cut off at the incumbent: ``(outcome, schedule or
+        None, dual bound)``; outcome ``optimal`` (nothing in the windows beats the incumbent or
+        the schedule returned), ``time_limit`` or ``restart``."""
+        import highspy
+
+        from l3gs_opt.models.backends.highs import new_highs
+
+        data = self.data
+        lp, var, _ = arrived_by_model(data, self.windows, relax=False)
+        h = new_highs(time_limit_s=time_limit_s, mip=True)
+        h.passModel(lp)
+        h.setOptionValue("objective_bound", float(-(self.z - data.constant)))
+        restart = [False]
+
+        def improving(event) -> None:
+            value = data.constant - float(event.data_out.objective_function_value)
+            if self.lv is not None and value > self.z:
+                w = fix_windows(data, self.lv, value, self.windows.first, self.windows.by)
+                if w.closed or int(np.maximum(data.T - w.first, 0).sum()) <= RESTART_SHRINK * size:
+                    restart[0] = True
+
+        def interrupt(event) -> None:
+            if restart[0]:
+                event.interrupt()
+
+        h.cbMipImprovingSolution.subscribe(improving)
+        h.cbMipInterrupt.subscribe(interrupt)
+        x0 = data.arrived(self.assign)
+        cols = var >= 0
+        if not (x0 & ~cols).any() and (x0[cols] | (np.arange(data.T)[None, :] < self.windows.by[:, None])[cols]).all():
+            sol = highspy.HighsSolution()
+            sol.col_value = x0[cols][np.argsort(var[cols])].astype(np.float64).tolist()
+            sol.value_valid = True
+            h.setSolution(sol)
+        h.run()
+        status, info = h.getModelStatus(), h.getInfo()
+        ms = highspy.HighsModelStatus
+        assign, exact_ok = None, True
+        if info.primal_solution_status == 2:
+            col = np.asarray(h.getSolution().col_value)
+            zz = np.zeros((data.n, data.T), dtype=bool)
+            zz[cols] = col[var[cols]] > 0.5
+            assign = np.where(zz.any(axis=1), np.argmax(zz, axis=1), -1).astype(np.int64)
+            if not schedule_feasible(data, assign, self.windows.first):
+                assign, exact_ok = None, False   # HiGHS's tolerance let it over a budget: no proof from it
+            elif schedule_value(data, assign) <= self.z:
+                assign = None
+        if exact_ok and status in (ms.kOptimal, ms.kInfeasible, ms.kObjectiveBound):
+            return "optimal", assign, self.z if assign is None else schedule_value(data, assign)
+        raw = float(info.mip_dual_bound)
+        dual = data.constant - raw if math.isfinite(raw) else math.inf
+        return ("restart" if restart[0] else "time_limit"), assign, dual + MIP_BOUND_SLACK * abs(dual)
+
+    def finish(self) -> Solution:
+        gap = relative_gap(self.z, self.bound, utility_scale(self.instance))
+        if gap is not None and gap <= GAP_TOL:
+            status, message = Status.OPTIMAL, ""
+        elif self.hit_limit or self.out_of_time():
+            status, message = Status.TIME_LIMIT, f"stopped: best schedule and a valid bound ({self.bound_kind})"
+        else:
+            status, message = Status.FEASIBLE, f"search ended without proof ({self.bound_kind})"
+        self.details.update({"bound_kind": self.bound_kind, "trace": self.trace})
+        return finish_solution(self.instance, self.data.arrivals(self.assign), problem=self.instance.problem,
+                               method="exact", status=status, bound=self.bound,
+                               runtime_s=time.perf_counter() - self.started, message=message, details=self.details)

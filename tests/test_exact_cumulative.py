@@ -1,0 +1,205 @@
+"""``exact`` under the cumulative budget (solvers/exact/cumulative*.py): against brute force,
+``link-dp`` and the ILP; the arrived-by Lagrangian bound for any multipliers; reduced-cost fixing
+keeps every better schedule; stiff cases and time limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from core_helpers import ALL_OPTIONS, random_instance
+from l3gs_opt import Instance, Options, solve
+from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
+from l3gs_opt.problem.solution import Status
+from l3gs_opt.solvers.brute_force import solve_brute_force
+from l3gs_opt.solvers.exact.cumulative import _lp_duals, lp_order, solve_cumulative
+from l3gs_opt.solvers.exact.cumulative_data import (LinkMultipliers, Windows, fix_windows, link_data,
+                                                    link_lagrangian, schedule_feasible, schedule_value)
+
+CUMULATIVE = [o for o in ALL_OPTIONS if o.budget == "cumulative"]
+SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _opt_id(o: Options) -> str:
+    return f"{o.availability}-{'same' if o.same_slot_layers else 'strict'}"
+
+
+def close(a: float, b: float) -> bool:
+    return abs(a - b) <= 1e-9 * max(abs(a), abs(b), 1.0)
+
+
+def _check(inst: Instance, sol) -> None:
+    assert is_feasible(inst, sol.arrivals)
+    assert sol.objective == evaluate_objective(inst, sol.arrivals)
+    assert sol.bound is not None and sol.bound >= sol.objective
+
+
+@pytest.mark.parametrize("opts", CUMULATIVE, ids=_opt_id)
+@pytest.mark.parametrize("seed", range(8))
+def test_equals_brute_force(opts: Options, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=4, J=2, L=2, options=opts, held_p=0.4 if seed % 2 else 0.0)
+    ref = solve_brute_force(inst)
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL
+    assert close(sol.objective, ref.objective)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_equals_link_dp_and_the_ilp(seed: int) -> None:
+    """Larger than brute force: ``link-dp`` (same-slot layers) and HiGHS on the standard model."""
+    rng = np.random.default_rng(500 + seed)
+    opts = CUMULATIVE[seed % 4]
+    inst = random_instance(rng, T=8, J=4, L=3, options=opts, held_p=0.3 if seed % 3 == 0 else 0.0, tight=0.3)
+    ref = solve(inst, "ilp")
+    assert ref.status is Status.OPTIMAL
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL and close(sol.objective, ref.objective)
+    if opts.same_slot_layers:
+        assert close(solve(inst, "link-dp").objective, ref.objective)
+
+
+def _multipliers(data, rng, scale: float) -> LinkMultipliers:
+    return LinkMultipliers(rng.random((data.n, data.T)) * scale, rng.random((data.n, data.T)) * scale)
+
+
+@settings(max_examples=40, **SETTINGS)
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), scale=st.sampled_from([0.0, 0.1, 1.0, 10.0]))
+def test_lagrangian_bounds_the_optimum_at_any_multipliers(seed: int, opt: int, scale: float) -> None:
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=4, J=2, L=2, options=CUMULATIVE[opt], held_p=0.3)
+    best = solve_brute_force(inst).objective
+    data = link_data(inst)
+    lv = link_lagrangian(data, _multipliers(data, rng, scale))
+    assert lv.bound >= best - 1e-12 * max(1.0, abs(best))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_lagrangian_at_the_lp_duals_lies_between_the_optimum_and_the_lp(seed: int) -> None:
+    """Integer knapsacks at the LP's own duals: never above the LP value (a dual sign slip would
+    put it above), never below the optimum."""
+    rng = np.random.default_rng(700 + seed)
+    inst = random_instance(rng, T=8, J=4, L=3, options=CUMULATIVE[seed % 4], tight=0.3)
+    best = solve(inst, "ilp").objective
+    data = link_data(inst)
+    windows = Windows(data.first.copy(), np.full(data.n, data.T), closed=False)
+    lp_value, mult, z = _lp_duals(data, windows, None)
+    lv = link_lagrangian(data, mult)
+    assert best - 1e-9 * abs(best) <= lv.bound <= lp_value + 1e-7 * max(1.0, abs(lp_value))
+    order = lp_order(data, z)
+    assert schedule_feasible(data, order)
+    assert is_feasible(inst, data.arrivals(order))
+    assert close(schedule_value(data, order), evaluate_objective(inst, data.arrivals(order)))
+
+
+@settings(max_examples=40, **SETTINGS)
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), scale=st.sampled_from([0.0, 0.5, 5.0]),
+       below=st.sampled_from([1e-6, 0.05, 0.5]))
+def test_fixing_keeps_the_optimum_when_the_incumbent_is_worse(seed: int, opt: int, scale: float,
+                                                              below: float) -> None:
+    """Every schedule better than the incumbent lies in the windows: the brute-force optimum does
+    whenever the incumbent is below it (and the windows are never empty then)."""
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=4, J=2, L=2, options=CUMULATIVE[opt], held_p=0.3, tight=0.4)
+    ref = solve_brute_force(inst)
+    data = link_data(inst)
+    assign = data.assignment(ref.arrivals)
+    assert schedule_feasible(data, assign)
+    lv = link_lagrangian(data, _multipliers(data, rng, scale))
+    incumbent = ref.objective - below * max(1.0, abs(ref.objective))
+    w = fix_windows(data, lv, incumbent)
+    assert not w.closed
+    on = assign >= 0
+    assert (assign[on] >= w.first[on]).all()
+    assert ((assign >= 0) & (assign <= w.by) | (w.by >= data.T)).all()
+
+
+@settings(max_examples=25, **SETTINGS)
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_signed_utilities_equal_brute_force(seed: int, opt: int) -> None:
+    rng = np.random.default_rng(seed)
+    T, J, L = 3, 2, 2
+    cost = rng.integers(1, 7, (J, L))
+    inst = Instance("layered", bandwidth=rng.integers(0, int(0.6 * cost.sum()) + 1, T), cost=cost,
+                    utility=rng.integers(-6, 9, (T, J, L)) / 4.0, options=CUMULATIVE[opt])
+    ref = solve_brute_force(inst)
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL and math.isclose(sol.objective, ref.objective, abs_tol=1e-9)
+
+
+STIFF = {
+    "zero_bandwidth": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((4, 3, 2)),
+                                       bandwidth=np.zeros(4, dtype=np.int64)),
+    "bandwidth_late": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((4, 3, 2)),
+                                       bandwidth=[0, 0, 0, 40]),
+    "huge_bytes": lambda rng: dict(cost=rng.integers(10**11, 10**12, (3, 2)), utility=rng.random((4, 3, 2)),
+                                   bandwidth=np.full(4, 10**12)),
+    "tiny_utilities": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((4, 3, 2)) * 1e-12,
+                                       bandwidth=np.full(4, 6)),
+    "empty_scene": lambda rng: dict(cost=np.zeros((0, 2), dtype=np.int64), utility=np.zeros((4, 0, 2)),
+                                    bandwidth=np.full(4, 5)),
+    "one_slot": lambda rng: dict(cost=rng.integers(1, 9, (3, 2)), utility=rng.random((1, 3, 2)), bandwidth=[7]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(STIFF))
+def test_stiff_cases(case: str) -> None:
+    rng = np.random.default_rng(3)
+    inst = Instance("layered", **STIFF[case](rng), options=Options(budget="cumulative"))
+    sol = solve(inst, "exact")
+    _check(inst, sol)
+    assert sol.status is Status.OPTIMAL
+    assert close(sol.objective, solve_brute_force(inst).objective)
+
+
+def test_all_held() -> None:
+    rng = np.random.default_rng(4)
+    inst = Instance("layered", bandwidth=[5, 5], cost=rng.integers(1, 5, (2, 2)), utility=rng.random((2, 2, 2)),
+                    held=np.ones((2, 2), bool), options=Options(budget="cumulative"))
+    sol = solve(inst, "exact")
+    assert sol.status is Status.OPTIMAL and sol.arrivals == ()
+
+
+@pytest.fixture(scope="module")
+def mid_instance():
+    """16 objects x 4 layers x 40 slots: ``exact`` proves it in a few seconds where HiGHS on the
+    standard model does not in 60 s; its optimum is checked against HiGHS's own bound."""
+    from l3gs_opt.pipeline.synth import synth_instance
+
+    inst = synth_instance(objects=16, layers=4, slots=40, seed=2).replace(options=Options(budget="cumulative"))
+    ref = solve(inst, "exact", time_limit_s=120)
+    _check(inst, ref)
+    assert ref.status is Status.OPTIMAL
+    ilp = solve(inst, "ilp", time_limit_s=10)
+    assert ilp.objective <= ref.objective * (1 + 1e-9) and ilp.bound >= ref.objective * (1 - 1e-9)
+    return inst, ref.objective
+
+
+@pytest.mark.parametrize("limit_s", [0.3, 1.5])
+def test_time_limit_returns_valid_bound_and_feasible_schedule(mid_instance, limit_s: float) -> None:
+    inst, best = mid_instance
+    sol = solve(inst, "exact", time_limit_s=limit_s)
+    _check(inst, sol)
+    assert sol.status in (Status.TIME_LIMIT, Status.OPTIMAL)
+    assert sol.bound >= best * (1 - 1e-9) and sol.objective <= best * (1 + 1e-9)
+    if sol.status is Status.OPTIMAL:
+        assert close(sol.objective, best)
+    else:
+        assert sol.runtime_s < limit_s + 2.0
+
+
+def test_start_heuristics_option_and_no_start() -> None:
+    rng = np.random.default_rng(9)
+    inst = random_instance(rng, T=6, J=3, L=3, options=Options(budget="cumulative"), tight=0.3)
+    ref = solve(inst, "ilp").objective
+    for heuristics in ((), ("slope",)):
+        sol = solve_cumulative(inst, heuristics=heuristics)
+        _check(inst, sol)
+        assert sol.status is Status.OPTIMAL and close(sol.objective, ref)
