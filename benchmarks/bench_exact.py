@@ -34,7 +34,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
-from l3gs_opt import solve  # noqa: E402
+from l3gs_opt import Options, solve  # noqa: E402
 from l3gs_opt.problem.solution import GAP_TOL  # noqa: E402
 from l3gs_opt.bench.suites import split_method, suite_specs  # noqa: E402
 
@@ -42,6 +42,11 @@ EXACT_METHODS = ["exact", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
 #: ``--report`` keeps everything in exact.md from this line on (notes written by hand).
 NOTES_MARK = "<!-- notes written by hand: kept by --report -->"
 HEURISTICS = ["rolling:bb", "rolling-future:bb", "mpc:3", "mpc:6", "progressive", "slope", "static"]
+
+
+def _prefix(args: argparse.Namespace) -> str:
+    """File prefix of a budget's records and report: ``exact`` (per slot), ``exact_cumulative``."""
+    return "exact" if args.budget == "per_slot" else f"exact_{args.budget}"
 
 
 def specs(seeds_20: int, seeds_200: int, seeds_50: int = 0) -> list:
@@ -55,7 +60,7 @@ def run(args: argparse.Namespace) -> None:
     from l3gs_opt.solvers.bounds import lp_bound
     from l3gs_opt.solvers.exact.lagrange import gap_data, lp_multipliers, subgradient
 
-    path = Path(args.out) / "exact_runs.jsonl"
+    path = Path(args.out) / f"{_prefix(args)}_runs.jsonl"
     done = set()
     if path.exists():
         for line in path.read_text().splitlines():
@@ -73,7 +78,10 @@ def run(args: argparse.Namespace) -> None:
 
         for spec in specs(args.seeds_20, args.seeds_200, args.seeds_50):
             inst = spec.build()
-            base = {"instance_id": spec.instance_id, "params": spec.params, "J": inst.J, "T": inst.T, "L": inst.L}
+            if args.budget != inst.options.budget:
+                inst = inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": args.budget}))
+            base = {"instance_id": spec.instance_id, "params": spec.params, "J": inst.J, "T": inst.T, "L": inst.L,
+                    "budget": args.budget}
             best_obj = -math.inf
             for label in EXACT_METHODS + HEURISTICS:
                 if (spec.instance_id, label) in done:
@@ -89,7 +97,8 @@ def run(args: argparse.Namespace) -> None:
                 t0 = time.perf_counter()
                 value, _ = lp_bound(inst)
                 write({**base, "label": "bound:lp", "bound": value, "runtime_s": time.perf_counter() - t0})
-            if (spec.instance_id, "bound:subgradient") not in done:
+            # (The per-slot Lagrangian of Problem A; under the cumulative budget exact reports its own.)
+            if args.budget == "per_slot" and (spec.instance_id, "bound:subgradient") not in done:
                 recs = [json.loads(x) for x in path.read_text().splitlines()]
                 best_obj = max([r["objective"] for r in recs if r["instance_id"] == spec.instance_id
                                 and r.get("objective") is not None] + [best_obj])
@@ -283,6 +292,8 @@ def main() -> int:
     ap.add_argument("--subgradient-s", type=float, default=15.0)
     ap.add_argument("--out", default="benchmarks/results")
     ap.add_argument("--report", action="store_true", help="only write exact.md, the summary and the plots")
+    ap.add_argument("--budget", choices=["per_slot", "cumulative"], default="per_slot",
+                    help="cumulative: the same instances on one sequential link (exact_cumulative*.{jsonl,md,json,png})")
     args = ap.parse_args()
     Path(args.out).mkdir(parents=True, exist_ok=True)
     if not args.report:

@@ -44,7 +44,7 @@ __all__ = ["solve_cumulative", "START_HEURISTICS", "arrived_by_model"]
 
 START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb")
 #: Share of the time left after the LP that subgradient steps may take (and at most this many seconds).
-SUBGRADIENT_SHARE, SUBGRADIENT_MAX_S = 0.15, 10.0
+SUBGRADIENT_SHARE, SUBGRADIENT_MAX_S = 0.05, 3.0
 #: HiGHS is stopped and restarted when fixing at its new schedule keeps at most this share.
 RESTART_SHRINK = 0.9
 #: Seconds kept back from HiGHS's limit (it overruns it a little).
