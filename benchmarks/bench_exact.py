@@ -117,27 +117,16 @@ def run(args: argparse.Namespace) -> None:
                        "converged": bool(not timed_out or bound <= best_obj + GAP_TOL * abs(bound))})
 
 
-def report(args: argparse.Namespace) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out = Path(args.out)
-    recs = [json.loads(x) for x in (out / "exact_runs.jsonl").read_text().splitlines()]
+def _load(out: Path, prefix: str) -> tuple[list, dict, dict]:
+    recs = [json.loads(x) for x in (out / f"{prefix}_runs.jsonl").read_text().splitlines()]
     by_inst: dict[str, dict[str, dict]] = {}
     for r in recs:
         by_inst.setdefault(r["instance_id"], {})[r["label"]] = r
-    summary: dict = {"instances": {}}
-    m = recs[0]["machine"]
-    lines = ["# `exact` at the paper's scale (Problem I, L=4, T=60)", "",
-             "Instances: `suite_specs(\"l3gs\", sizes=[J], seeds=S)` T=60 specs (layered, L=4, bundled Lumos5G "
-             "traces scaled to a mean of 11.8 Mbit/s, window from 60 s x seed). Every method got the same "
-             f"time limit ({recs[0]['time_limit_s']} s); runs were sequential.", "",
-             f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; packages {m['packages']}. "
-             "**The machine was shared** with other work: the 1-minute load average before/after each run is "
-             "recorded (2 cores; a load of 4 means each process got roughly half a core).", "",
-             "Gap = (bound - objective) / bound, certified by each method's own bound. `best known` = best objective "
+    return recs, by_inst, {"instances": {}}
+
+
+def _proof_table(by_inst: dict, summary: dict) -> list[str]:
+    lines = ["Gap = (bound - objective) / bound, certified by each method's own bound. `best known` = best objective "
              "of any method on the instance; `best bound` = smallest valid bound of any method or bound.", ""]
     lines += ["## Time to proof or final gap", "",
               "| instance | method | status | objective | bound | gap | run time (s) | load before/after |",
@@ -158,6 +147,185 @@ def report(args: argparse.Namespace) -> None:
                          f"{r['runtime_s']:.1f} | {r['loadavg_before'][0]:.1f}/{r['loadavg_after'][0]:.1f} |")
             summary["instances"][iid]["methods"][label] = {k: r[k] for k in ("status", "objective", "bound", "gap",
                                                                              "runtime_s")}
+    return lines
+
+
+def _heuristics_table(by_inst: dict, summary: dict) -> list[str]:
+    lines: list[str] = []
+    lines += ["", "## Every multi-slot heuristic's gap at the paper's scale", "",
+              "Gap to the best bound known (certified) and to the best objective known (in brackets).", "",
+              "| instance | " + " | ".join(HEURISTICS) + " |", "|---|" + "---|" * len(HEURISTICS)]
+    for iid, d in by_inst.items():
+        s = summary["instances"][iid]
+        cells = []
+        s["heuristics"] = {}
+        for h in HEURISTICS:
+            r = d.get(h)
+            if r is None:
+                cells.append("-")
+                continue
+            gb = (s["best_bound"] - r["objective"]) / s["best_bound"] if s["best_bound"] else None
+            gk = (s["best_known"] - r["objective"]) / s["best_known"]
+            s["heuristics"][h] = {"objective": r["objective"], "gap_to_best_bound": gb, "gap_to_best_known": gk,
+                                  "runtime_s": r["runtime_s"], "status": r["status"]}
+            mark = "" if r["status"] != "time_limit" else " (time limit)"
+            cells.append(f"{100 * gb:.2f}% ({100 * gk:.2f}%), {r['runtime_s']:.1f} s{mark}")
+        lines.append(f"| {iid} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _gap_plots(by_inst: dict, out: Path, prefix: str, title: str) -> list[str]:
+    """One gap-against-time PNG per size (``exact``'s trace, the MILPs' final points)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines: list[str] = []
+    # Gap against time, one plot per size.
+    sizes = sorted({d["exact"]["J"] for d in by_inst.values() if "exact" in d})
+    colours = {"exact": "C0", "ilp/highs": "C1", "ilp/cbc": "C2", "ilp/cpsat": "C3"}
+    lines += ["", "## Gap against time", ""]
+    for J in sizes:
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        for iid, d in by_inst.items():
+            if "exact" not in d or d["exact"]["J"] != J:
+                continue
+            tr = d["exact"]["details"].get("trace", [])
+            if tr:
+                ts = [p[0] for p in tr]
+                gaps = [max((p[2] - p[1]) / p[2], 1e-9) for p in tr]
+                ax.step(ts, gaps, where="post", color=colours["exact"], alpha=0.8,
+                        label="exact (trace)" if iid.endswith("s0") else None)
+            for label in EXACT_METHODS[1:]:
+                r = d.get(label)
+                if r is None:
+                    continue
+                g = r["gap"] if r["gap"] is not None and math.isfinite(r["gap"]) else 1.0
+                ax.scatter([r["runtime_s"]], [max(min(g, 1.0), 1e-9)], color=colours[label], marker="x",
+                           label=f"{label} (final)" if iid.endswith("s0") else None)
+        ax.set_yscale("log")
+        ax.axhline(1e-3, color="grey", lw=0.8, ls=":")
+        ax.set_xlabel("seconds")
+        ax.set_ylabel("certified gap (bound - objective) / bound")
+        ax.set_title(f"J={J}, L=4, T=60{title}: gap against time (1e-9 = proven)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        png = out / f"{prefix}_gap_vs_time_J{J}.png"
+        fig.savefig(png, dpi=110)
+        plt.close(fig)
+        lines.append(f"![J={J}]({png.name})")
+    lines += ["", "The generic MILPs report only their final (objective, bound); they are drawn as one point at "
+              "their run time. `exact`'s trace starts when its LP relaxation (and the Lagrangian bound at its duals) is done.", ""]
+    return lines
+
+
+def _size_summary(by_inst: dict, summary: dict) -> list[str]:
+    """Per size and method: proven within the limit, median time of the proofs, largest final gap."""
+    lines = ["", "## Per size", "", "| J | method | proven | median time of the proofs (s) | largest final gap |",
+             "|---|---|---|---|---|"]
+    sizes = sorted({r["J"] for d in by_inst.values() for r in d.values() if "J" in r})
+    summary["sizes"] = {}
+    for J in sizes:
+        for label in EXACT_METHODS:
+            rs = [d[label] for d in by_inst.values() if label in d and d[label]["J"] == J]
+            if not rs:
+                continue
+            proven = sorted(r["runtime_s"] for r in rs if r["status"] == "optimal")
+            gaps = [r["gap"] for r in rs if r["gap"] is not None]
+            med = f"{proven[len(proven) // 2]:.1f}" if len(proven) % 2 else \
+                (f"{(proven[len(proven) // 2 - 1] + proven[len(proven) // 2]) / 2:.1f}" if proven else "-")
+            worst = max(gaps) if gaps else None
+            summary["sizes"].setdefault(str(J), {})[label] = {"proven": len(proven), "runs": len(rs),
+                                                               "proof_times_s": proven, "largest_gap": worst}
+            lines.append(f"| {J} | {label} | {len(proven)} of {len(rs)} | {med} | "
+                         f"{'-' if worst is None else f'{worst:.2e}'} |")
+    return lines
+
+
+def _write(out: Path, prefix: str, lines: list[str], summary: dict) -> None:
+    """``{prefix}.md`` (keeping the notes below NOTES_MARK) and ``{prefix}_summary.json``."""
+    md = out / f"{prefix}.md"
+    old = md.read_text(encoding="utf-8") if md.exists() else ""
+    notes = old[old.index(NOTES_MARK):] if NOTES_MARK in old else ""
+    md.write_text("\n".join(lines) + "\n" + ("\n" + notes if notes else ""), encoding="utf-8")
+    (out / f"{prefix}_summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n", encoding="utf-8")
+
+
+def report_cumulative(args: argparse.Namespace) -> None:
+    """``exact_cumulative.md``: the same instances under the cumulative budget."""
+    out, prefix = Path(args.out), _prefix(args)
+    recs, by_inst, summary = _load(out, prefix)
+    m = recs[0]["machine"]
+    lines = ["# `exact` under the cumulative budget (Problem I, L=4, T=60, one sequential link)", "",
+             "Instances: the T=60 specs of `exact.md` (`suite_specs(\"l3gs\", sizes=[J], seeds=S)`, layered, L=4, "
+             "bundled Lumos5G traces scaled to a mean of 11.8 Mbit/s) with `budget=\"cumulative\"`: the bytes "
+             "arriving by slot t are at most the trace's bytes up to t (the experiments' ceiling). `exact` solves "
+             "them in the arrived-by form (solvers/exact/cumulative.py): per-slot knapsack Lagrangian at the LP "
+             "duals, reduced-cost arrival windows, HiGHS on what is left. Every method got the same time limit "
+             f"({recs[0]['time_limit_s']} s); runs were sequential, in one run of "
+             "`bench_exact.py --budget cumulative`.", "",
+             f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; packages {m['packages']}. "
+             "The 1-minute load average before/after each run is recorded.", ""]
+    lines += _proof_table(by_inst, summary)
+    lines += _size_summary(by_inst, summary)
+    lines += ["", "## Bounds", "",
+              "Relative excess over the best objective known. `Lagrangian` = one exact 0-1 knapsack per slot "
+              "(capacity: bytes up to that slot) with the linking rows (arrived stays arrived, layer order) "
+              "dualised, at the LP duals and after subgradient steps from them.", "",
+              "| instance | best known | LP | Lagrangian at the LP duals | after subgradient | exact final "
+              "| ilp/highs final |", "|---|---|---|---|---|---|---|"]
+    for iid, d in by_inst.items():
+        bk = summary["instances"][iid]["best_known"]
+
+        def ex(b):
+            return "-" if b is None or not math.isfinite(b) else f"{b:.7g} ({(b - bk) / bk:.1e})"
+        det = d.get("exact", {}).get("details", {})
+        summary["instances"][iid]["bounds"] = {
+            "lp": d.get("bound:lp", {}).get("bound"), "lagrangian_at_lp_duals": det.get("lagrangian_at_lp_duals"),
+            "subgradient": det.get("lagrangian_subgradient"), "exact_final": d.get("exact", {}).get("bound")}
+        lines.append(f"| {iid} | {bk:.7g} | {ex(d.get('bound:lp', {}).get('bound'))} | "
+                     f"{ex(det.get('lagrangian_at_lp_duals'))} | {ex(det.get('lagrangian_subgradient'))} | "
+                     f"{ex(d.get('exact', {}).get('bound'))} | {ex(d.get('ilp/highs', {}).get('bound'))} |")
+    lines += ["", "## Where `exact` spends its time", "",
+              "`start`: the start heuristics (best value, and where the incumbent finally came from); `root`: "
+              "the LP, its order as a schedule, the Lagrangian at its duals and the subgradient steps; then the "
+              "(chunk, slot) variables of the arrived-by model before and after reduced-cost fixing, and the "
+              "HiGHS runs on what is left (restart: stopped at a schedule where the fixing, redone, drops a "
+              "tenth of the variables).", "",
+              "| instance | start done (s) | root done (s) | variables -> after fixing | HiGHS runs | "
+              "incumbent from | bound kind |", "|---|---|---|---|---|---|---|"]
+    for iid, d in by_inst.items():
+        r = d.get("exact")
+        if r is None:
+            continue
+        det = r.get("details", {})
+        tr = det.get("trace", [])
+        runs = det.get("mip_runs", [])
+        mip = ", ".join(f"{x['outcome']} at {x['seconds']:.1f} s" for x in runs) or "-"
+        lines.append(f"| {iid} | {tr[0][0]:.1f} | {tr[min(2, len(tr) - 1)][0]:.1f} | "
+                     f"{det.get('items', 0) * det.get('slots', 0)} -> {det.get('windows_after_root', '-')} | {mip} | "
+                     f"{det.get('incumbent_from', '-')} | {det.get('bound_kind', '-')} |")
+    lines += _heuristics_table(by_inst, summary)
+    lines += _gap_plots(by_inst, out, prefix, ", cumulative budget")
+    _write(out, prefix, lines, summary)
+
+
+def report(args: argparse.Namespace) -> None:
+    if args.budget == "cumulative":
+        report_cumulative(args)
+        return
+    out = Path(args.out)
+    recs, by_inst, summary = _load(out, _prefix(args))
+    m = recs[0]["machine"]
+    lines = ["# `exact` at the paper's scale (Problem I, L=4, T=60)", "",
+             "Instances: `suite_specs(\"l3gs\", sizes=[J], seeds=S)` T=60 specs (layered, L=4, bundled Lumos5G "
+             "traces scaled to a mean of 11.8 Mbit/s, window from 60 s x seed). Every method got the same "
+             f"time limit ({recs[0]['time_limit_s']} s); runs were sequential.", "",
+             f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; packages {m['packages']}. "
+             "**The machine was shared** with other work: the 1-minute load average before/after each run is "
+             "recorded (2 cores; a load of 4 means each process got roughly half a core).", ""]
+    lines += _proof_table(by_inst, summary)
     lines += ["", "## Bound quality: LP vs Lagrangian (subgradient) vs column generation", "",
               "Relative excess over the best objective known: (bound - best known) / best known. The "
               "subgradient method (Polyak steps towards the best objective known, step halved after 5 "
@@ -221,66 +389,10 @@ def report(args: argparse.Namespace) -> None:
                      f"{root.get('seconds', 0):.1f} | {cg} | {'-' if primal_t is None else f'{primal_t:.1f}'} | "
                      f"{root.get('incumbent', float('nan')):.7g} | {pairs} | "
                      f"{red.get('outcome', '-')}{restarts} | {det.get('bound_kind', '-')} |")
-    lines += ["", "## Every multi-slot heuristic's gap at the paper's scale", "",
-              "Gap to the best bound known (certified) and to the best objective known (in brackets).", "",
-              "| instance | " + " | ".join(HEURISTICS) + " |", "|---|" + "---|" * len(HEURISTICS)]
-    for iid, d in by_inst.items():
-        s = summary["instances"][iid]
-        cells = []
-        s["heuristics"] = {}
-        for h in HEURISTICS:
-            r = d.get(h)
-            if r is None:
-                cells.append("-")
-                continue
-            gb = (s["best_bound"] - r["objective"]) / s["best_bound"] if s["best_bound"] else None
-            gk = (s["best_known"] - r["objective"]) / s["best_known"]
-            s["heuristics"][h] = {"objective": r["objective"], "gap_to_best_bound": gb, "gap_to_best_known": gk,
-                                  "runtime_s": r["runtime_s"], "status": r["status"]}
-            mark = "" if r["status"] != "time_limit" else " (time limit)"
-            cells.append(f"{100 * gb:.2f}% ({100 * gk:.2f}%), {r['runtime_s']:.1f} s{mark}")
-        lines.append(f"| {iid} | " + " | ".join(cells) + " |")
-    # Gap against time, one plot per size.
-    sizes = sorted({d["exact"]["J"] for d in by_inst.values() if "exact" in d})
-    colours = {"exact": "C0", "ilp/highs": "C1", "ilp/cbc": "C2", "ilp/cpsat": "C3"}
-    lines += ["", "## Gap against time", ""]
-    for J in sizes:
-        fig, ax = plt.subplots(figsize=(7, 4.5))
-        for iid, d in by_inst.items():
-            if "exact" not in d or d["exact"]["J"] != J:
-                continue
-            tr = d["exact"]["details"].get("trace", [])
-            if tr:
-                ts = [p[0] for p in tr]
-                gaps = [max((p[2] - p[1]) / p[2], 1e-9) for p in tr]
-                ax.step(ts, gaps, where="post", color=colours["exact"], alpha=0.8,
-                        label="exact (trace)" if iid.endswith("s0") else None)
-            for label in EXACT_METHODS[1:]:
-                r = d.get(label)
-                if r is None:
-                    continue
-                g = r["gap"] if r["gap"] is not None and math.isfinite(r["gap"]) else 1.0
-                ax.scatter([r["runtime_s"]], [max(min(g, 1.0), 1e-9)], color=colours[label], marker="x",
-                           label=f"{label} (final)" if iid.endswith("s0") else None)
-        ax.set_yscale("log")
-        ax.axhline(1e-3, color="grey", lw=0.8, ls=":")
-        ax.set_xlabel("seconds")
-        ax.set_ylabel("certified gap (bound - objective) / bound")
-        ax.set_title(f"J={J}, L=4, T=60: gap against time (1e-9 = proven)")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        png = out / f"exact_gap_vs_time_J{J}.png"
-        fig.savefig(png, dpi=110)
-        plt.close(fig)
-        lines.append(f"![J={J}]({png.name})")
-    lines += ["", "The generic MILPs report only their final (objective, bound); they are drawn as one point at "
-              "their run time. `exact`'s trace starts when its LP relaxation (and the Lagrangian bound at its duals) is done.", ""]
+    lines += _heuristics_table(by_inst, summary)
+    lines += _gap_plots(by_inst, out, "exact", "")
     # Notes written by hand below NOTES_MARK survive the regeneration.
-    md = out / "exact.md"
-    old = md.read_text(encoding="utf-8") if md.exists() else ""
-    notes = old[old.index(NOTES_MARK):] if NOTES_MARK in old else ""
-    md.write_text("\n".join(lines) + "\n" + ("\n" + notes if notes else ""), encoding="utf-8")
-    (out / "exact_summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n", encoding="utf-8")
+    _write(out, "exact", lines, summary)
 
 
 def main() -> int:

@@ -377,22 +377,39 @@ def test_by_utility_headline_by_hand():
     assert u["by_utility"]["eq1"]["matches_every_baseline"] is False
 
 
-def test_a_ceiling_whose_solver_hangs_is_killed_and_still_valid(monkeypatch):
-    """The ceiling's HiGHS run is guarded: in a child process (here it finishes: the answer is the
-    direct solve's), and when the child is killed the ceiling is a feasible schedule with the LP
-    bound, status time_limit, saying why."""
+@pytest.mark.parametrize("method", ["exact", "ilp"])
+def test_a_ceiling_whose_solver_hangs_is_killed_and_still_valid(monkeypatch, method):
+    """The ceiling's solve (``exact``; ``ilp/highs`` for the DP's cross-check) is guarded: in a
+    child process (here it finishes: the answer is brute force's optimum), and when the child is
+    killed the answer is a feasible schedule with the LP bound, status time_limit, saying why."""
     import l3gs_opt.executors as executors
     from l3gs_opt.experiments import run as run_mod
-    from l3gs_opt.methods import solve
     from l3gs_opt.problem.evaluate import feasibility_violations
+    from l3gs_opt.solvers.brute_force import solve_brute_force
 
     inst = Instance("layered", bandwidth=[3, 2, 4], cost=[[2, 2], [1, 3]],
                     utility=np.array([[[1.0, 2.0], [0.5, 3.0]]] * 3), options=Options(budget="cumulative"))
-    direct = solve(inst, "ilp", backend="highs")
-    guarded = run_mod._guarded_ceiling_ilp(inst, 5.0)
-    assert guarded.objective == pytest.approx(direct.objective) and str(guarded.status) == "optimal"
+    best = solve_brute_force(inst).objective
+    guarded = run_mod._guarded_ceiling(inst, 5.0, method=method)
+    assert guarded.method == method
+    assert guarded.objective == pytest.approx(best) and str(guarded.status) == "optimal"
     monkeypatch.setattr(executors, "run_guarded", lambda *a, **k: None)   # as if killed
-    killed = run_mod._guarded_ceiling_ilp(inst, 5.0)
-    assert str(killed.status) == "time_limit" and "killed" in killed.message
-    assert killed.bound is not None and killed.bound >= direct.objective - 1e-9 >= killed.objective - 1e-9
+    killed = run_mod._guarded_ceiling(inst, 5.0, method=method)
+    assert str(killed.status) == "time_limit" and "killed" in killed.message and killed.method == method
+    assert killed.bound is not None and killed.bound >= best - 1e-9 >= killed.objective - 1e-9
     assert feasibility_violations(inst, killed.arrivals) == []
+
+def test_a_ceiling_too_large_for_the_dp_is_proven_by_exact(monkeypatch):
+    """Past the DP's state limit the ceiling is ``exact`` (guarded), proven optimal: the DP's own
+    optimum (the limit lowered so that the DP is skipped) is the reference."""
+    import l3gs_opt.solvers.link_dp as link_dp
+    from l3gs_opt.experiments import run as run_mod
+
+    rng = np.random.default_rng(5)
+    inst = Instance("layered", bandwidth=rng.integers(0, 6, 8), cost=rng.integers(1, 5, (4, 3)),
+                    utility=rng.random((8, 4, 3)), options=Options(budget="cumulative"))
+    best = link_dp.solve_link_dp(inst).objective
+    monkeypatch.setattr(link_dp, "MAX_STATES", 1)
+    rec = run_mod._ceiling_record(None, inst, {"record_id": "c"}, 20.0, 0.0)
+    assert rec["method"] == "exact" and rec["status"] == "optimal" and rec["time_limit_s"] == 20.0
+    assert rec["objective"] == pytest.approx(best, rel=1e-9)

@@ -124,7 +124,7 @@ def register(subparsers) -> None:
     p.add_argument("--width", type=int, default=None, help="render width in pixels (default 160, quick 128)")
     p.add_argument("--height", type=int, default=None, help="render height in pixels (default 120, quick 96)")
     p.add_argument("--time-limit", type=float, default=None, metavar="S",
-                   help="seconds per ILP ceiling when the exact DP is too large (default 60, quick 20)")
+                   help="seconds per ceiling solved by exact when the DP is too large (default 60, quick 20)")
     p.add_argument("--check-time", type=float, default=None, metavar="S",
                    help="seconds of the ilp/highs cross-check of each DP ceiling, 0 = none (default 10, quick 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random window starts")

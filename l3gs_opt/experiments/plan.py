@@ -277,7 +277,7 @@ class ExperimentPlan:
     samples_per_slot : int
         Viewpoints per slot (predictions, utilities, the ceiling's true utilities).
     ceiling_time_limit_s : float
-        Seconds per ceiling solve when the exact DP is too large and ``ilp/highs`` solves it.
+        Seconds per ceiling solve when the exact DP is too large and ``exact`` solves it.
     ceiling_check_s : float
         Seconds of an ``ilp/highs`` cross-check of each DP ceiling (0: none).
     schedule : dict

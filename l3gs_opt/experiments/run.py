@@ -24,8 +24,9 @@ The experiments (the report, :mod:`l3gs_opt.experiments.report`, reads them back
    (Eq. 1 averaged over the viewer's true poses in each slot, exactly as the simulator's oracle
    viewport computes them) and the true bandwidth, ``cumulative`` budget -- solved exactly by
    ``link-dp`` (:mod:`l3gs_opt.solvers.link_dp`, a DP over the delivered sets; optionally
-   cross-checked against ``ilp/highs``), or by ``ilp/highs`` within a time limit when the DP's
-   state space is too large (a time-limited answer is labelled and carries its bound).
+   cross-checked against ``ilp/highs``), or by ``exact`` within a time limit when the DP's state
+   space is too large (a time-limited answer is labelled and carries its bound; before ``exact``
+   took the cumulative budget this was ``ilp/highs``, 20-100% gaps at 14 objects in 20 s).
 
 Why the cumulative budget: the simulated link carries a chunk cut off at a slot's end into the next
 slot, so the chunks *completed* by slot t never exceed the trace's bytes up to t; every
@@ -270,9 +271,11 @@ def _sim_record(task: Task, result, inst, base: dict, *, preload: bool = False) 
     return rec
 
 
-def _ceiling_ilp(inst, time_limit_s: float):
+def _ceiling_solve(inst, time_limit_s: float, method: str = "exact"):
     from l3gs_opt.methods import solve
 
+    if method == "exact":
+        return solve(inst, "exact", time_limit_s=time_limit_s)
     # HiGHS 1.14's root-reduced-cost heuristic ran a sub-MIP that ignored the time limit and the
     # interrupt callbacks for > 20 min on a 14-object ceiling (a one-link Problem I, 60 slots);
     # without it the same solve stopped at its 20 s limit.
@@ -280,37 +283,39 @@ def _ceiling_ilp(inst, time_limit_s: float):
                  options={"mip_heuristic_run_root_reduced_cost": False})
 
 
-#: A ceiling's HiGHS run is killed this long past its time limit (seconds): on a 180k-splat room of
-#: 14 objects one ran > 30 min past a 20 s limit (HiGHS 1.14), with the other heuristic off.
+#: A ceiling's solve is killed this long past its time limit (seconds): on a 180k-splat room of
+#: 14 objects ``ilp/highs`` ran > 30 min past a 20 s limit (HiGHS 1.14, with the other heuristic
+#: off). ``exact`` runs HiGHS too (on the model its fixing leaves), so it keeps the guard.
 CEILING_KILL_AFTER_S = 60.0
 
 
-def _guarded_ceiling_ilp(inst, time_limit_s: float):
-    """``ilp/highs`` within ``time_limit_s``, in a child process killed :data:`CEILING_KILL_AFTER_S`
-    past it. A killed run leaves no incumbent: the ceiling is then ``rolling-future:bb``'s schedule
-    (feasible) with the LP relaxation's bound, status ``time_limit``, and says so in its message."""
+def _guarded_ceiling(inst, time_limit_s: float, method: str = "exact"):
+    """``exact`` (the ceiling) or ``ilp`` (the DP ceiling's cross-check, HiGHS) within
+    ``time_limit_s``, in a child process killed :data:`CEILING_KILL_AFTER_S` past it. A killed
+    run leaves no incumbent: the answer is then ``rolling-future:bb``'s schedule (feasible) with
+    the LP relaxation's bound, status ``time_limit``, and says so in its message."""
     from l3gs_opt.executors import run_guarded
     from l3gs_opt.methods import solve
     from l3gs_opt.problem.solution import Status, finish_solution
 
-    sol = run_guarded(functools.partial(_ceiling_ilp, time_limit_s=time_limit_s), inst,
+    sol = run_guarded(functools.partial(_ceiling_solve, time_limit_s=time_limit_s, method=method), inst,
                       time_limit_s + CEILING_KILL_AFTER_S, lambda *_: None, start_method="spawn")
     if sol is not None:
         return sol
     started = time.perf_counter()
     lp = solve(inst, "lp", backend="highs", time_limit_s=time_limit_s)
     heur = solve(inst, "rolling-future:bb", options={"bound": False})
-    return finish_solution(inst, heur.arrivals, problem=heur.problem, method="ilp", status=Status.TIME_LIMIT,
+    return finish_solution(inst, heur.arrivals, problem=heur.problem, method=method, status=Status.TIME_LIMIT,
                            bound=lp.bound,   # the relaxation's bound (None if it did not finish)
                            runtime_s=time_limit_s + CEILING_KILL_AFTER_S + time.perf_counter() - started,
-                           backend="highs",
-                           message=f"HiGHS killed {CEILING_KILL_AFTER_S:.0f} s past its {time_limit_s:.0f} s limit; "
-                                   "schedule of rolling-future:bb, bound of the LP relaxation")
+                           backend="highs" if method == "ilp" else None,
+                           message=f"{method} killed {CEILING_KILL_AFTER_S:.0f} s past its {time_limit_s:.0f} s "
+                                   "limit; schedule of rolling-future:bb, bound of the LP relaxation")
 
 
 def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: float) -> dict:
     """The exact ceiling: ``link-dp`` (proven optimal, :mod:`l3gs_opt.solvers.link_dp`) when its state
-    space is small enough, else ``ilp/highs`` within ``time_limit_s`` (a time-limited answer keeps its
+    space is small enough, else ``exact`` within ``time_limit_s`` (a time-limited answer keeps its
     bound). ``check_s > 0``: also run ``ilp/highs`` for that long and check its incumbent <= the DP
     optimum <= its bound."""
     from l3gs_opt.solvers.link_dp import MAX_STATES, link_dp_states, solve_link_dp
@@ -318,7 +323,7 @@ def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: 
     if link_dp_states(inst) <= MAX_STATES:
         sol = solve_link_dp(inst)
     else:
-        sol = _guarded_ceiling_ilp(inst, time_limit_s)
+        sol = _guarded_ceiling(inst, time_limit_s)
     rec = dict(base)
     rec.update({
         "kind": "ceiling", "problem": "I" if inst.layered else "II", "method": sol.method, "backend": sol.backend,
@@ -332,7 +337,7 @@ def _ceiling_record(task: Task, inst, base: dict, time_limit_s: float, check_s: 
         "loadavg": list(os.getloadavg()), "check": None, "message": sol.message,
     })
     if check_s > 0 and sol.method == "link-dp":
-        ilp = _guarded_ceiling_ilp(inst, check_s)
+        ilp = _guarded_ceiling(inst, check_s, method="ilp")
         tol = 1e-6 * max(1.0, abs(sol.objective))
         ok = ilp.objective <= sol.objective + tol and (ilp.bound is None or sol.objective <= ilp.bound + tol)
         rec["check"] = {"method": "ilp/highs", "status": str(ilp.status), "objective": float(ilp.objective),
