@@ -203,3 +203,15 @@ def test_start_heuristics_option_and_no_start() -> None:
         sol = solve_cumulative(inst, heuristics=heuristics)
         _check(inst, sol)
         assert sol.status is Status.OPTIMAL and close(sol.objective, ref)
+
+
+def test_rejects_slot_and_unknown_branching_and_start() -> None:
+    from l3gs_opt.errors import SolveError
+
+    inst = random_instance(np.random.default_rng(0), options=Options(budget="cumulative"))
+    with pytest.raises(SolveError, match="slot does not apply"):
+        solve(inst, "exact", slot=0)
+    with pytest.raises(SolveError, match="branching"):
+        solve(inst, "exact", options={"branching": "dfs"})
+    with pytest.raises(SolveError, match="start heuristic"):
+        solve(inst, "exact", options={"heuristics": ["nope"]})

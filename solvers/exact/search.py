@@ -432,13 +432,14 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
                               max_nodes=max_nodes, branching=branching)
     if slot is not None:
         raise SolveError("method 'exact' schedules the whole horizon: slot does not apply (use 'bb' for one slot)")
+    if branching not in BRANCHING:
+        raise SolveError(f"branching = {branching!r} is not one of {', '.join(BRANCHING)}")
     if instance.options.budget == "cumulative":
-        # One sequential link: the arrived-by form (solvers/exact/cumulative.py).
+        # One sequential link: the arrived-by form (solvers/exact/cumulative.py; HiGHS is its
+        # only branching, so ``branching`` and ``max_nodes`` do not apply).
         from .cumulative import solve_cumulative
 
         return solve_cumulative(instance, time_limit_s=time_limit_s, heuristics=heuristics)
-    if branching not in BRANCHING:
-        raise SolveError(f"branching = {branching!r} is not one of {', '.join(BRANCHING)}")
     search = _Search(instance, started=started, time_limit_s=time_limit_s, max_nodes=max_nodes, lns_width=lns_width,
                      branching=branching)
     search.start(heuristics)
