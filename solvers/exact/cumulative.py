@@ -51,6 +51,8 @@ RESTART_SHRINK = 0.9
 MIP_MARGIN_S = 0.5
 #: Relative slack on HiGHS's dual bound (its LP tolerances).
 MIP_BOUND_SLACK = 1e-9
+#: Seconds between trace points taken inside HiGHS (gap-against-time plots).
+TRACE_EVERY_S = 1.0
 
 
 def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
@@ -307,9 +309,33 @@ class _Run(Clock):
         h.passModel(lp)
         h.setOptionValue("objective_bound", float(-(self.z - data.constant)))
         restart = [False]
+        z_before, best = self.z, [self.z]
+        last = [time.perf_counter()]
+
+        def note(out) -> None:
+            # A trace point: HiGHS's incumbent and dual bound (valid above z_before: every better
+            # schedule lies in the windows), at most one a TRACE_EVERY_S.
+            raw = float(out.mip_dual_bound)
+            dual = data.constant - raw if math.isfinite(raw) else math.inf
+            bound = min(self.bound, max(z_before, dual + MIP_BOUND_SLACK * abs(dual)))
+            self.trace.append((self.now(), best[0], max(bound, best[0])))
+            last[0] = time.perf_counter()
+
+        cols = var >= 0
+
+        def schedule_of(col: np.ndarray) -> np.ndarray:
+            zz = np.zeros((data.n, data.T), dtype=bool)
+            zz[cols] = col[var[cols]] > 0.5
+            return np.where(zz.any(axis=1), np.argmax(zz, axis=1), -1).astype(np.int64)
 
         def improving(event) -> None:
-            value = data.constant - float(event.data_out.objective_function_value)
+            cand = schedule_of(np.asarray(event.data_out.mip_solution))
+            if not schedule_feasible(data, cand, self.windows.first):
+                return   # (over a budget within HiGHS's tolerance: not a schedule)
+            value = schedule_value(data, cand)
+            if value > best[0]:
+                best[0] = value
+                note(event.data_out)
             if self.lv is not None and value > self.z:
                 w = fix_windows(data, self.lv, value, self.windows.first, self.windows.by)
                 if w.closed or int(np.maximum(data.T - w.first, 0).sum()) <= RESTART_SHRINK * size:
@@ -318,11 +344,12 @@ class _Run(Clock):
         def interrupt(event) -> None:
             if restart[0]:
                 event.interrupt()
+            elif time.perf_counter() - last[0] >= TRACE_EVERY_S:
+                note(event.data_out)
 
         h.cbMipImprovingSolution.subscribe(improving)
         h.cbMipInterrupt.subscribe(interrupt)
         x0 = data.arrived(self.assign)
-        cols = var >= 0
         if not (x0 & ~cols).any() and (x0[cols] | (np.arange(data.T)[None, :] < self.windows.by[:, None])[cols]).all():
             sol = highspy.HighsSolution()
             sol.col_value = x0[cols][np.argsort(var[cols])].astype(np.float64).tolist()
@@ -333,10 +360,7 @@ class _Run(Clock):
         ms = highspy.HighsModelStatus
         assign, exact_ok = None, True
         if info.primal_solution_status == 2:
-            col = np.asarray(h.getSolution().col_value)
-            zz = np.zeros((data.n, data.T), dtype=bool)
-            zz[cols] = col[var[cols]] > 0.5
-            assign = np.where(zz.any(axis=1), np.argmax(zz, axis=1), -1).astype(np.int64)
+            assign = schedule_of(np.asarray(h.getSolution().col_value))
             if not schedule_feasible(data, assign, self.windows.first):
                 assign, exact_ok = None, False   # HiGHS's tolerance let it over a budget: no proof from it
             elif schedule_value(data, assign) <= self.z:
