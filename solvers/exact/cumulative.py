@@ -38,6 +38,7 @@ from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
 from .clock import Clock
 from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, link_data, link_lagrangian,
                               link_subgradient, schedule_feasible, schedule_value)
+from .lns import MIP_BOUND_SLACK
 from .starts import check_starts, run_start
 
 __all__ = ["solve_cumulative", "START_HEURISTICS", "arrived_by_model"]
@@ -49,15 +50,14 @@ SUBGRADIENT_SHARE, SUBGRADIENT_MAX_S = 0.05, 3.0
 RESTART_SHRINK = 0.9
 #: Seconds kept back from HiGHS's limit (it overruns it a little).
 MIP_MARGIN_S = 0.5
-#: Relative slack on HiGHS's dual bound (its LP tolerances).
-MIP_BOUND_SLACK = 1e-9
 #: Seconds between trace points taken inside HiGHS (gap-against-time plots).
 TRACE_EVERY_S = 1.0
 
 
 def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
-    """The arrived-by model over the windows as a ``highspy.HighsLp`` (minimising minus the value): ``(lp, var, rows)`` with
-    ``var`` [n, T] the column of ``z[i,t]`` (-1: none) and ``rows`` the first row of each family
+    """The arrived-by model over the windows as a ``highspy.HighsLp`` (minimising minus the value):
+    ``(lp, var, rows)`` with ``var`` [n, T] the column of ``z[i,t]`` (-1: none) and ``rows`` the first
+    row of each family
     (``"budget"``, ``"stay"``, ``"order"``) plus the (chunk, slot) of every linking row."""
     from scipy import sparse
 
@@ -250,8 +250,7 @@ class _Run(Clock):
             return
         self.details["lp_bound"] = lp_value
         self.offer(lp_order(data, zlp), "lp order")
-        deadline = None if self.deadline is None else self.deadline
-        lv = link_lagrangian(data, mult, first=self.windows.first, deadline=deadline)
+        lv = link_lagrangian(data, mult, first=self.windows.first, deadline=self.deadline)
         self.details["lagrangian_at_lp_duals"] = lv.bound
         self.set_bound(lv.bound, "Lagrangian (per-slot knapsacks at the LP duals)")
         self.fix(lv)
