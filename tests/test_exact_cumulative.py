@@ -215,3 +215,33 @@ def test_rejects_slot_and_unknown_branching_and_start() -> None:
         solve(inst, "exact", options={"branching": "dfs"})
     with pytest.raises(SolveError, match="start heuristic"):
         solve(inst, "exact", options={"heuristics": ["nope"]})
+
+
+@settings(max_examples=40, **SETTINGS)
+@given(seed=st.integers(0, 10_000), next_slot=st.booleans(), held=st.booleans())
+def test_order_search_keeps_schedules_feasible_and_never_loses(seed: int, next_slot: bool, held: bool) -> None:
+    """From any feasible schedule (a heuristic's, brute force's optimum): a feasible schedule,
+    never worse with utilities >= 0, and the optimum stays optimal."""
+    from l3gs_opt.solvers.exact.cumulative_order import improve_order
+
+    rng = np.random.default_rng(seed)
+    opts = Options(budget="cumulative", availability="next_slot" if next_slot else "same_slot")
+    inst = random_instance(rng, T=4, J=3, L=2, options=opts, held_p=0.4 if held else 0.0, tight=0.4)
+    data = link_data(inst)
+    ref = solve_brute_force(inst)
+    for start in (data.assignment(solve(inst, "static").arrivals), data.assignment(ref.arrivals),
+                  np.full(data.n, -1, dtype=np.int64)):
+        out = improve_order(data, start)
+        assert schedule_feasible(data, out) and is_feasible(inst, data.arrivals(out))
+        assert schedule_value(data, out) >= schedule_value(data, start) - 1e-12
+        assert schedule_value(data, out) <= ref.objective + 1e-9
+
+
+def test_order_search_leaves_strict_layers_alone() -> None:
+    from l3gs_opt.solvers.exact.cumulative_order import improve_order
+
+    inst = random_instance(np.random.default_rng(2), T=4, J=3, L=2,
+                           options=Options(budget="cumulative", same_slot_layers=False))
+    data = link_data(inst)
+    start = data.assignment(solve(inst, "static").arrivals)
+    assert (improve_order(data, start) == start).all()
