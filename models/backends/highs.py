@@ -113,6 +113,15 @@ def sparse_lp(matrix: Any, *, col_cost: np.ndarray, col_lower: np.ndarray, col_u
     return lp
 
 
+def solve_lp(lp: highspy.HighsLp, *, time_limit_s: float | None = None) -> highspy.Highs | None:
+    """HiGHS on ``lp`` (at least 0.01 s when limited): the solver holding its solution when the LP
+    is optimal, else None."""
+    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
+    h.passModel(lp)
+    h.run()
+    return h if h.getModelStatus() == highspy.HighsModelStatus.kOptimal else None
+
+
 def version() -> str:
     return f"highspy {_pkg_version('highspy')}"
 

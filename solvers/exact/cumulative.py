@@ -129,17 +129,13 @@ def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
 def _lp_duals(data: LinkData, windows: Windows, time_limit_s: float | None
               ) -> tuple[float | None, LinkMultipliers | None, np.ndarray | None]:
     """LP value, its duals on the linking rows as multipliers, and ``z`` [n, T] (None: no optimal LP)."""
-    import highspy
-
-    from l3gs_opt.models.backends.highs import new_highs
+    from l3gs_opt.models.backends.highs import solve_lp
 
     lp, var, rows = arrived_by_model(data, windows, relax=True)
     if lp.num_col_ == 0:
         return data.constant, LinkMultipliers.zeros(data), np.zeros((data.n, data.T))
-    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
-    h.passModel(lp)
-    h.run()
-    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+    h = solve_lp(lp, time_limit_s=time_limit_s)
+    if h is None:
         return None, None, None
     sol = h.getSolution()
     dual = np.maximum(0.0, -np.asarray(sol.row_dual))

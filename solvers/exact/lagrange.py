@@ -402,7 +402,6 @@ def lp_multipliers(data: GapData, *, time_limit_s: float | None = None
     integers) and, unlike the LP value, a bound that does not depend on the LP's tolerances.
     Returns ``(None, None, None)`` when HiGHS gives no optimal LP.
     """
-    import highspy
     from scipy import sparse
 
     n, T = data.n, data.T
@@ -457,17 +456,15 @@ def lp_multipliers(data: GapData, *, time_limit_s: float | None = None
         up_b.append(np.zeros(pu.size))
         r += pu.size
     A = sparse.csc_matrix((np.concatenate(vals), (np.concatenate(rows_i), np.concatenate(cols_i))), shape=(r, 2 * nx))
-    from l3gs_opt.models.backends.highs import new_highs, sparse_lp
+    from l3gs_opt.models.backends.highs import solve_lp, sparse_lp
 
     # Y is free: its bounds are implied by the rows, and a bound must not take over a row's dual.
     lp = sparse_lp(A, col_cost=np.concatenate([-data.profit.ravel(), np.zeros(nx)]),
                    col_lower=np.concatenate([np.zeros(nx), np.full(nx, -np.inf)]),
                    col_upper=np.concatenate([np.where(data.allowed.ravel(), 1.0, 0.0), np.full(nx, np.inf)]),
                    row_lower=np.concatenate(lo_b), row_upper=np.concatenate(up_b))
-    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01))
-    h.passModel(lp)
-    h.run()
-    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+    h = solve_lp(lp, time_limit_s=time_limit_s)
+    if h is None:
         return None, None, None
     sol = h.getSolution()
     dual = -np.asarray(sol.row_dual)
