@@ -26,7 +26,7 @@ The experiments (the report, :mod:`l3gs_opt.experiments.report`, reads them back
    ``link-dp`` (:mod:`l3gs_opt.solvers.link_dp`, a DP over the delivered sets; optionally
    cross-checked against ``ilp/highs``), or by ``exact`` within a time limit when the DP's state
    space is too large (a time-limited answer is labelled and carries its bound; before ``exact``
-   took the cumulative budget this was ``ilp/highs``, 20-100% gaps at 14 objects in 20 s).
+   took the cumulative budget this was ``ilp/highs``, 1-100% gaps at 14 objects in 20 s).
 
 Why the cumulative budget: the simulated link carries a chunk cut off at a slot's end into the next
 slot, so the chunks *completed* by slot t never exceed the trace's bytes up to t; every
