@@ -27,6 +27,7 @@ import argparse
 import json
 import math
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -233,8 +234,7 @@ def _size_summary(by_inst: dict, summary: dict) -> list[str]:
                 continue
             proven = sorted(r["runtime_s"] for r in rs if r["status"] == "optimal")
             gaps = [r["gap"] for r in rs if r["gap"] is not None]
-            med = f"{proven[len(proven) // 2]:.1f}" if len(proven) % 2 else \
-                (f"{(proven[len(proven) // 2 - 1] + proven[len(proven) // 2]) / 2:.1f}" if proven else "-")
+            med = f"{statistics.median(proven):.1f}" if proven else "-"
             worst = max(gaps) if gaps else None
             summary["sizes"].setdefault(str(J), {})[label] = {"proven": len(proven), "runs": len(rs),
                                                                "proof_times_s": proven, "largest_gap": worst}

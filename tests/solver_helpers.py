@@ -1,4 +1,5 @@
-"""Seeded instance generators shared by the solver tests (test_mckp*, test_rolling*, test_solvers*).
+"""Seeded instance generators and checks shared by the solver tests (test_mckp*, test_rolling*, test_solvers*,
+test_exact*).
 
 Families for the single-slot MCKP: ``random`` (small integers), ``stiff`` (utilities 1e-9..1e9,
 costs 1e2..1e9), ``ties`` (few distinct costs and utilities), ``zero`` / ``huge`` budgets and
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.problem.instance import Instance, Options
 
 FAMILIES = ("random", "stiff", "ties", "zero", "huge", "held")
@@ -66,3 +68,11 @@ def rel_close(a: float, b: float, rtol: float = 1e-9) -> bool:
     """Objectives agree to ``rtol`` relative (float sums of the same terms in other orders; 1e-9
     is ``GAP_TOL``, the gap that counts as optimal)."""
     return abs(a - b) <= rtol * max(abs(a), abs(b), 1e-300)
+
+
+def check_answer(inst: Instance, sol) -> None:
+    """An exact method's answer: feasible in exact bytes, its objective the instance's own
+    evaluation of its schedule, a bound at or above it."""
+    assert is_feasible(inst, sol.arrivals)
+    assert sol.objective == evaluate_objective(inst, sol.arrivals)
+    assert sol.bound is not None and sol.bound >= sol.objective

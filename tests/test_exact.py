@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from core_helpers import PER_SLOT_OPTIONS, random_instance
+from solver_helpers import check_answer
 from l3gs_opt import Instance, Options, solve
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
@@ -34,10 +35,7 @@ def rel_close(a: float, b: float, rtol: float = 1e-9) -> bool:
     return abs(a - b) <= rtol * max(abs(a), abs(b), 1.0)
 
 
-def _check(inst: Instance, sol) -> None:
-    assert is_feasible(inst, sol.arrivals)
-    assert sol.objective == evaluate_objective(inst, sol.arrivals)
-    assert sol.bound is not None and sol.bound >= sol.objective
+_check = check_answer
 
 
 @pytest.mark.parametrize("opts", ACCEPTED, ids=lambda o: f"{o.availability}-{o.same_slot_layers}")

@@ -11,34 +11,29 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from core_helpers import ALL_OPTIONS, random_instance
+from core_helpers import ALL_OPTIONS, option_id, random_instance
+from solver_helpers import check_answer
 from l3gs_opt import Instance, Options, solve
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.problem.solution import Status
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.exact.cumulative import _lp_duals, lp_order, solve_cumulative
 from l3gs_opt.solvers.exact.cumulative_data import (LinkMultipliers, Windows, fix_windows, link_data,
-                                                    link_lagrangian, schedule_feasible, schedule_value)
+                                                    link_lagrangian, schedule_feasible)
+from l3gs_opt.solvers.exact.lagrange import assignment_value
 
 CUMULATIVE = [o for o in ALL_OPTIONS if o.budget == "cumulative"]
 SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
-
-
-def _opt_id(o: Options) -> str:
-    return f"{o.availability}-{'same' if o.same_slot_layers else 'strict'}"
 
 
 def close(a: float, b: float) -> bool:
     return abs(a - b) <= 1e-9 * max(abs(a), abs(b), 1.0)
 
 
-def _check(inst: Instance, sol) -> None:
-    assert is_feasible(inst, sol.arrivals)
-    assert sol.objective == evaluate_objective(inst, sol.arrivals)
-    assert sol.bound is not None and sol.bound >= sol.objective
+_check = check_answer
 
 
-@pytest.mark.parametrize("opts", CUMULATIVE, ids=_opt_id)
+@pytest.mark.parametrize("opts", CUMULATIVE, ids=option_id)
 @pytest.mark.parametrize("seed", range(8))
 def test_equals_brute_force(opts: Options, seed: int) -> None:
     rng = np.random.default_rng(seed)
@@ -95,7 +90,7 @@ def test_lagrangian_at_the_lp_duals_lies_between_the_optimum_and_the_lp(seed: in
     order = lp_order(data, z)
     assert schedule_feasible(data, order)
     assert is_feasible(inst, data.arrivals(order))
-    assert close(schedule_value(data, order), evaluate_objective(inst, data.arrivals(order)))
+    assert close(assignment_value(data, order), evaluate_objective(inst, data.arrivals(order)))
 
 
 @settings(max_examples=40, **SETTINGS)
@@ -233,8 +228,8 @@ def test_order_search_keeps_schedules_feasible_and_never_loses(seed: int, next_s
                   np.full(data.n, -1, dtype=np.int64)):
         out = improve_order(data, start)
         assert schedule_feasible(data, out) and is_feasible(inst, data.arrivals(out))
-        assert schedule_value(data, out) >= schedule_value(data, start) - 1e-12
-        assert schedule_value(data, out) <= ref.objective + 1e-9
+        assert assignment_value(data, out) >= assignment_value(data, start) - 1e-12
+        assert assignment_value(data, out) <= ref.objective + 1e-9
 
 
 def test_order_search_leaves_strict_layers_alone() -> None:

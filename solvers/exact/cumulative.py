@@ -39,8 +39,9 @@ from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
 
 from .clock import Clock
 from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, link_data, link_lagrangian,
-                              link_subgradient, schedule_feasible, schedule_value)
+                              link_subgradient, schedule_feasible)
 from .cumulative_order import improve_order
+from .lagrange import assignment_value
 from .lns import MIP_BOUND_SLACK
 from .starts import check_starts, run_start
 
@@ -201,7 +202,7 @@ class _Run(Clock):
         self.deadline = None if time_limit_s is None else self.started + float(time_limit_s)
         self.data = data = link_data(instance)
         self.assign = np.full(data.n, -1, dtype=np.int64)
-        self.z = schedule_value(data, self.assign)
+        self.z = assignment_value(data, self.assign)
         self.bound, self.bound_kind = (self.z, "no chunk can arrive") if data.n == 0 else (math.inf, "none")
         self.windows = Windows(data.first.copy(), np.full(data.n, data.T, dtype=np.int64), closed=False)
         self.lv = None
@@ -218,7 +219,7 @@ class _Run(Clock):
 
     def offer(self, assign: np.ndarray, source: str) -> None:
         if schedule_feasible(self.data, assign):
-            value = schedule_value(self.data, assign)
+            value = assignment_value(self.data, assign)
             if value > self.z:
                 self.assign, self.z = assign, value
                 self.details["incumbent_from"] = source
@@ -237,7 +238,7 @@ class _Run(Clock):
                 break
             sol = run_start(name, self.instance, left)
             assign = self.data.assignment(sol.arrivals)
-            values[name] = schedule_value(self.data, assign)
+            values[name] = assignment_value(self.data, assign)
             self.offer(assign, name)
         self.details["start_values"] = values
         self.trace.append((self.now(), self.z, self.bound))
@@ -342,7 +343,7 @@ class _Run(Clock):
             cand = schedule_of(np.asarray(event.data_out.mip_solution))
             if not schedule_feasible(data, cand, self.windows.first):
                 return   # (over a budget within HiGHS's tolerance: not a schedule)
-            value = schedule_value(data, cand)
+            value = assignment_value(data, cand)
             if value > best[0]:
                 best[0] = value
                 note(event.data_out)
@@ -373,10 +374,10 @@ class _Run(Clock):
             assign = schedule_of(np.asarray(h.getSolution().col_value))
             if not schedule_feasible(data, assign, self.windows.first):
                 assign, exact_ok = None, False   # HiGHS's tolerance let it over a budget: no proof from it
-            elif schedule_value(data, assign) <= self.z:
+            elif assignment_value(data, assign) <= self.z:
                 assign = None
         if exact_ok and status in (ms.kOptimal, ms.kInfeasible, ms.kObjectiveBound):
-            return "optimal", assign, self.z if assign is None else schedule_value(data, assign)
+            return "optimal", assign, self.z if assign is None else assignment_value(data, assign)
         raw = float(info.mip_dual_bound)
         dual = data.constant - raw if math.isfinite(raw) else math.inf
         return ("restart" if restart[0] else "time_limit"), assign, dual + MIP_BOUND_SLACK * abs(dual)

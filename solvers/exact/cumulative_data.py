@@ -40,7 +40,7 @@ from l3gs_opt.problem.instance import Instance
 
 from .lagrange import ChunkItems, chunk_arrays, knapsack
 
-__all__ = ["LinkData", "link_data", "schedule_value", "schedule_feasible", "LinkMultipliers", "LinkLagrange",
+__all__ = ["LinkData", "link_data", "schedule_feasible", "LinkMultipliers", "LinkLagrange",
            "link_lagrangian", "link_subgradient", "fix_windows", "Windows"]
 
 _EPS = np.finfo(np.float64).eps
@@ -58,8 +58,9 @@ class LinkData(ChunkItems):
         Bytes of each chunk.
     shown : float64 array [n, T]
         ``s[i,t]``: the value of chunk i having arrived by slot t (any sign).
-    future : float64 array [n, T]
-        ``sum_{t'>=t} s[i,t']``: the value of arriving in slot t.
+    profit : float64 array [n, T]
+        ``sum_{t'>=t} s[i,t']``: the value of arriving in slot t (Problem A's ``P``, for every
+        slot; :func:`.lagrange.assignment_value` sums it for a schedule).
     first : int64 array [n]
         Earliest slot chunk i may arrive in (T: never).
     lower, upper : int arrays [n]
@@ -77,7 +78,7 @@ class LinkData(ChunkItems):
     item_l: np.ndarray
     cost: np.ndarray
     shown: np.ndarray
-    future: np.ndarray
+    profit: np.ndarray
     first: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
@@ -100,21 +101,14 @@ def link_data(instance: Instance) -> LinkData:
     """The arrived-by form of a layered instance with the ``cumulative`` budget."""
     if not instance.layered or instance.options.budget != "cumulative":
         raise SolveError("the arrived-by form is for layered instances with the cumulative budget")
-    red, jj, ll, lower, upper, allowed, shown = chunk_arrays(instance)
+    red, jj, ll, lower, upper, allowed, shown, future = chunk_arrays(instance)
     T = instance.T
     first = np.where(allowed.any(axis=1), np.argmax(allowed, axis=1), T).astype(np.int64)
-    future = np.flip(np.cumsum(np.flip(shown, axis=1), axis=1), axis=1)
     return LinkData(T=T, item_j=jj, item_l=ll, cost=instance.cost[jj, ll].astype(np.int64), shown=shown,
-                    future=future, first=first, lower=lower, upper=upper,
+                    profit=future, first=first, lower=lower, upper=upper,
                     strict=not instance.options.same_slot_layers,
                     capacity=np.cumsum(instance.bandwidth.astype(np.int64)), constant=red.constant,
                     stats=dict(red.stats))
-
-
-def schedule_value(data: LinkData, assign: np.ndarray) -> float:
-    """Objective of an assignment (float64, compensated sum; held constant included)."""
-    on = np.nonzero(assign >= 0)[0]
-    return math.fsum([data.constant, *data.future[on, assign[on]].tolist()])
 
 
 def schedule_feasible(data: LinkData, assign: np.ndarray, first: np.ndarray | None = None) -> bool:

@@ -11,7 +11,7 @@ bytes, so its effect is one suffix sum):
 * **remove** a chunk and the layers above it that are sent (the later chunks move earlier);
 * **move** a chunk elsewhere (after its lower layer, before its upper layer).
 
-Values are ``future[i, slot]`` (any sign); the caller checks and values the result exactly.
+Values are ``profit[i, slot]`` (any sign); the caller checks and values the result exactly.
 Strict layers (a layer strictly after the one below) are not orders of this kind: the search
 leaves such instances alone.
 """
@@ -61,7 +61,7 @@ def improve_order(data: LinkData, assign: np.ndarray, *, deadline: float | None 
     if data.strict or data.n == 0:
         return assign
     T = data.T
-    fut = np.concatenate([data.future, np.zeros((data.n, 1))], axis=1)   # column T: not arriving
+    fut = np.concatenate([data.profit, np.zeros((data.n, 1))], axis=1)   # column T: not arriving
     order = order_of(data, assign)
     for _ in range(max_rounds):
         if deadline is not None and time.perf_counter() > deadline:

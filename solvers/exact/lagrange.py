@@ -130,9 +130,10 @@ def check_supported(instance: Instance, method: str = "exact") -> None:
 def chunk_arrays(instance: Instance) -> tuple:
     """The chunks presolve keeps of a layered instance, for either budget.
 
-    Returns ``(reduction, item_j, item_l, lower, upper, allowed, shown)``: ``allowed`` [n, T]
-    the slots a chunk may arrive in, ``shown`` [n, T] the value of "arrived by t" (presolve's
-    gain shifted by the availability option).
+    Returns ``(reduction, item_j, item_l, lower, upper, allowed, shown, future)``: ``allowed``
+    [n, T] the slots a chunk may arrive in, ``shown`` [n, T] the value of "arrived by t" (presolve's
+    gain shifted by the availability option), ``future`` [n, T] its suffix sums (the value of
+    arriving in slot t).
     """
     inst = instance
     red = presolve(inst)
@@ -153,7 +154,9 @@ def chunk_arrays(instance: Instance) -> tuple:
     # lower layer is neither is never deliverable.
     orphan = (ll > 0) & (lower < 0) & ~inst.held[jj, np.maximum(ll - 1, 0)]
     allowed[orphan] = False
-    return red, jj.astype(np.int64), ll.astype(np.int64), lower.astype(np.int64), upper, allowed, shown[jj, ll, :]
+    shown = shown[jj, ll, :]
+    future = np.flip(np.cumsum(np.flip(shown, axis=1), axis=1), axis=1)
+    return red, jj.astype(np.int64), ll.astype(np.int64), lower.astype(np.int64), upper, allowed, shown, future
 
 
 def gap_data(instance: Instance) -> GapData:
@@ -166,8 +169,7 @@ def gap_data(instance: Instance) -> GapData:
     """
     check_supported(instance)
     inst = instance
-    red, jj, ll, lower, upper, allowed, shown = chunk_arrays(inst)
-    future = np.flip(np.cumsum(np.flip(shown, axis=1), axis=1), axis=1)
+    red, jj, ll, lower, upper, allowed, _, future = chunk_arrays(inst)
     profit = np.where(allowed, future, 0.0)
     return GapData(T=inst.T, item_j=jj, item_l=ll, cost=inst.cost[jj, ll].astype(np.int64),
                    profit=profit, allowed=allowed, lower=lower, upper=upper,
@@ -186,7 +188,9 @@ def chunk_profits(data: GapData, assign: np.ndarray) -> np.ndarray:
 
 
 def assignment_value(data: GapData, assign: np.ndarray) -> float:
-    """Objective of an assignment (held constant included), as an exactly rounded sum."""
+    """Objective of an assignment (held constant included), as an exactly rounded sum; any data
+    with ``profit`` [n, T] (value of arriving in slot t) and ``constant`` (also the cumulative
+    budget's :class:`.cumulative_data.LinkData`)."""
     on = np.nonzero(assign >= 0)[0]
     return math.fsum([data.constant, *data.profit[on, assign[on]].tolist()])
 
