@@ -240,3 +240,17 @@ def test_order_search_leaves_strict_layers_alone() -> None:
     data = link_data(inst)
     start = data.assignment(solve(inst, "static").arrivals)
     assert (improve_order(data, start) == start).all()
+
+
+def test_polyak_step_halves_after_five_stalls_and_is_spent_below_its_floor() -> None:
+    """The step both Lagrangians share: Polyak's size, theta halved after 5 iterations without a
+    better bound (a better one resets the count), spent below 1e-4 (after 14 halvings)."""
+    from l3gs_opt.solvers.exact.lagrange import PolyakStep
+
+    step = PolyakStep()
+    assert step.size(10.0, 6.0, 2.0) == 2.0
+    for _ in range(4):
+        assert step.record(False)
+    assert step.record(True) and step.theta == 1.0
+    records = [step.record(False) for _ in range(5 * 14)]
+    assert all(records[:-1]) and not records[-1] and step.theta == 0.5 ** 14

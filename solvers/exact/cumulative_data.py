@@ -38,7 +38,7 @@ import numpy as np
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 
-from .lagrange import ChunkItems, chunk_arrays, knapsack
+from .lagrange import ChunkItems, PolyakStep, chunk_arrays, knapsack
 
 __all__ = ["LinkData", "link_data", "schedule_feasible", "LinkMultipliers", "LinkLagrange",
            "link_lagrangian", "link_subgradient", "fix_windows", "Windows"]
@@ -209,7 +209,7 @@ def link_subgradient(data: LinkData, start: LinkMultipliers, *, target: float, t
     mult = start
     val = link_lagrangian(data, mult, first=first, deadline=deadline)
     best, best_mult = val, mult
-    theta, stall = 1.0, 0
+    schedule = PolyakStep()
     while time.perf_counter() < deadline and val.bound > target:
         z = val.z.astype(np.float64)
         g_a = np.zeros_like(z)
@@ -224,17 +224,14 @@ def link_subgradient(data: LinkData, start: LinkMultipliers, *, target: float, t
         norm = float((g_a ** 2).sum() + (g_b ** 2).sum())
         if norm == 0:
             break
-        step = theta * (val.bound - target) / norm
+        step = schedule.size(val.bound, target, norm)
         mult = LinkMultipliers(np.maximum(0.0, mult.alpha + step * g_a), np.maximum(0.0, mult.beta + step * g_b))
         val = link_lagrangian(data, mult, first=first, deadline=deadline)
-        if val.bound < best.bound - 1e-12 * abs(best.bound):
-            best, best_mult, stall = val, mult, 0
-        else:
-            stall += 1
-            if stall >= 5:
-                theta, stall = theta / 2, 0
-                if theta < 1e-4:
-                    break
+        better = val.bound < best.bound - 1e-12 * abs(best.bound)
+        if better:
+            best, best_mult = val, mult
+        if not schedule.record(better):
+            break
         if trace is not None:
             trace.append((time.perf_counter() - started, best.bound))
     return best, best_mult

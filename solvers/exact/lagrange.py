@@ -44,7 +44,7 @@ from .. import _mckp
 from . import pricing
 
 __all__ = ["ChunkItems", "GapData", "gap_data", "chunk_arrays", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
-           "lagrangian_value", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
+           "lagrangian_value", "PolyakStep", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
            "chunk_profits"]
 
 _EPS = np.finfo(np.float64).eps
@@ -351,6 +351,30 @@ def _subgradient(data: GapData, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return g_mu, g_pi
 
 
+class PolyakStep:
+    """The subgradient step of both Lagrangians (this one and :mod:`.cumulative_data`'s): Polyak's
+    ``theta (L - target) / |g|^2``, ``theta`` halved after ``STALL`` iterations without a better
+    bound, spent once it falls below ``THETA_MIN``."""
+
+    STALL, THETA_MIN = 5, 1e-4
+
+    def __init__(self) -> None:
+        self.theta, self.stall = 1.0, 0
+
+    def size(self, value: float, target: float, norm: float) -> float:
+        return self.theta * (value - target) / norm
+
+    def record(self, better: bool) -> bool:
+        """One iteration (``better``: it lowered the best bound); False once the step is spent."""
+        if better:
+            self.stall = 0
+            return True
+        self.stall += 1
+        if self.stall >= self.STALL:
+            self.theta, self.stall = self.theta / 2, 0
+        return self.theta >= self.THETA_MIN
+
+
 def subgradient(data: GapData, *, target: float, start: Multipliers | None = None, iterations: int = 200,
                 time_limit_s: float | None = None, allowed: np.ndarray | None = None,
                 forced: dict[int, int] | None = None,
@@ -366,7 +390,7 @@ def subgradient(data: GapData, *, target: float, start: Multipliers | None = Non
     best_val = lagrangian_value(data, mult, allowed=allowed, forced=forced)
     best, best_mult = best_val.bound, mult.copy()
     val = best_val
-    theta, stall = 1.0, 0
+    schedule = PolyakStep()
     has = (data.lower >= 0)[:, None]
     for _ in range(iterations):
         if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
@@ -378,17 +402,14 @@ def subgradient(data: GapData, *, target: float, start: Multipliers | None = Non
         norm = float((g_mu ** 2).sum() + (g_pi ** 2).sum())
         if norm == 0 or val.bound <= target:
             break
-        step = theta * (val.bound - target) / norm
+        step = schedule.size(val.bound, target, norm)
         mult = Multipliers(np.maximum(0.0, mult.mu + step * g_mu), np.maximum(0.0, mult.pi + step * g_pi))
         val = lagrangian_value(data, mult, allowed=allowed, forced=forced)
-        if val.bound < best - 1e-12 * abs(best):
-            best, best_mult, best_val, stall = val.bound, mult.copy(), val, 0
-        else:
-            stall += 1
-            if stall >= 5:
-                theta, stall = theta / 2, 0
-                if theta < 1e-4:
-                    break
+        better = val.bound < best - 1e-12 * abs(best)
+        if better:
+            best, best_mult, best_val = val.bound, mult.copy(), val
+        if not schedule.record(better):
+            break
         if trace is not None:
             trace.append((time.perf_counter() - started, best))
     return best, best_mult, best_val
