@@ -313,19 +313,17 @@ class _Run(Clock):
         import highspy
 
         from l3gs_opt.models.backends.highs import new_highs
+        from l3gs_opt.models.backends.highs_race import mip_seeds, race_mip
 
         data = self.data
         lp, var, _ = arrived_by_model(data, self.windows, relax=False)
-        h = new_highs(time_limit_s=time_limit_s, mip=True)
-        h.passModel(lp)
-        h.setOptionValue("objective_bound", float(-(self.z - data.constant)))
         restart = [False]
         z_before, best = self.z, [self.z]
         last = [time.perf_counter()]
 
         def note(out) -> None:
-            # A trace point: HiGHS's incumbent and dual bound (valid above z_before: every better
-            # schedule lies in the windows), at most one a TRACE_EVERY_S.
+            # A trace point: the best schedule and HiGHS's dual bound (valid above z_before: every
+            # better schedule lies in the windows), at most one a TRACE_EVERY_S.
             raw = float(out.mip_dual_bound)
             dual = data.constant - raw if math.isfinite(raw) else math.inf
             bound = min(self.bound, max(z_before, dual + MIP_BOUND_SLACK * abs(dual)))
@@ -358,28 +356,39 @@ class _Run(Clock):
             elif time.perf_counter() - last[0] >= TRACE_EVERY_S:
                 note(event.data_out)
 
-        h.cbMipImprovingSolution.subscribe(improving)
-        h.cbMipInterrupt.subscribe(interrupt)
         x0 = data.arrived(self.assign)
+        start = None
         if not (x0 & ~cols).any() and (x0[cols] | (np.arange(data.T)[None, :] < self.windows.by[:, None])[cols]).all():
-            sol = highspy.HighsSolution()
-            sol.col_value = x0[cols][np.argsort(var[cols])].astype(np.float64).tolist()
-            sol.value_valid = True
-            h.setSolution(sol)
-        h.run()
-        status, info = h.getModelStatus(), h.getInfo()
-        ms = highspy.HighsModelStatus
+            start = highspy.HighsSolution()
+            start.col_value = x0[cols][np.argsort(var[cols])].astype(np.float64).tolist()
+            start.value_valid = True
+
+        def build(seed: int) -> highspy.Highs:
+            h = new_highs(time_limit_s=time_limit_s, mip=True)
+            h.passModel(lp)
+            h.setOptionValue("objective_bound", float(-(self.z - data.constant)))
+            h.cbMipImprovingSolution.subscribe(improving)
+            h.cbMipInterrupt.subscribe(interrupt)
+            if start is not None:
+                h.setSolution(start)
+            return h
+
+        race = race_mip(build, mip_seeds())
         assign, exact_ok = None, True
-        if info.primal_solution_status == 2:
-            assign = schedule_of(np.asarray(h.getSolution().col_value))
-            if not schedule_feasible(data, assign, self.windows.first):
-                assign, exact_ok = None, False   # HiGHS's tolerance let it over a budget: no proof from it
-            elif assignment_value(data, assign) <= self.z:
-                assign = None
-        if exact_ok and status in (ms.kOptimal, ms.kInfeasible, ms.kObjectiveBound):
+        for k, h in enumerate(race.runs):
+            if h.getInfo().primal_solution_status != 2:
+                continue
+            cand = schedule_of(np.asarray(h.getSolution().col_value))
+            if not schedule_feasible(data, cand, self.windows.first):
+                if k == race.winner:
+                    exact_ok = False   # HiGHS's tolerance let it over a budget: no proof from it
+                continue
+            if assignment_value(data, cand) > max(self.z, -math.inf if assign is None else
+                                                   assignment_value(data, assign)):
+                assign = cand
+        if exact_ok and race.winner is not None:
             return "optimal", assign, self.z if assign is None else assignment_value(data, assign)
-        raw = float(info.mip_dual_bound)
-        dual = data.constant - raw if math.isfinite(raw) else math.inf
+        dual = data.constant - race.dual if math.isfinite(race.dual) else math.inf
         return ("restart" if restart[0] else "time_limit"), assign, dual + MIP_BOUND_SLACK * abs(dual)
 
     def finish(self) -> Solution:

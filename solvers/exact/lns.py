@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
 from l3gs_opt.models.backends.highs import new_highs
+from l3gs_opt.models.backends.highs_race import race_mip
 
 from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
@@ -239,7 +240,8 @@ def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.nda
 def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit_s: float | None,
                 start: np.ndarray | None = None, sparse: bool = True, highs_options: dict | None = None,
                 restart_if: Callable[[float], bool] | None = None,
-                stop: Callable[[], bool] | None = None, proof: bool = True) -> tuple[str, np.ndarray | None, float]:
+                stop: Callable[[], bool] | None = None, proof: bool = True,
+                seeds: Sequence[int] = (0,)) -> tuple[str, np.ndarray | None, float]:
     """Problem A restricted to the pairs in ``mask`` (after reduced-cost fixing), solved by HiGHS
     with the objective cut off at ``incumbent``: only strictly better schedules are searched.
 
@@ -254,6 +256,8 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     returning true (polled in HiGHS's loops, e.g. set by another thread) ends the run as
     ``"time_limit"``. ``proof=False`` (a heuristic call, whose schedule is checked and valued
     anyway) lets HiGHS use presolve rule 13, which :func:`new_highs` otherwise switches off.
+    ``seeds``: one HiGHS run per seed, raced in threads (:func:`~l3gs_opt.models.backends.highs_race.race_mip`:
+    they share schedules, the first to close ends all; the bound is the best of theirs).
     """
     import highspy
 
@@ -266,34 +270,24 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     var[ii, tt] = np.arange(nv)
     # With ``proof`` its "optimal" closes exact's search: HiGHS's presolve rule that returned wrong
     # optima is switched off (models/backends/highs.py); a heuristic call keeps it (faster).
-    h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01), mip=True, proof=proof)
-    for key, value in (highs_options or {}).items():
-        h.setOptionValue(key, value)
-    restart = [False]
-    if restart_if is not None:
-        def improving(event) -> None:
-            # HiGHS minimises -(profit): its objective is minus ours without the held constant.
-            if restart_if(data.constant - float(event.data_out.objective_function_value)):
-                restart[0] = True
+    def fresh() -> highspy.Highs:
+        h = new_highs(time_limit_s=None if time_limit_s is None else max(time_limit_s, 0.01), mip=True, proof=proof)
+        for key, value in (highs_options or {}).items():
+            h.setOptionValue(key, value)
+        # Only schedules strictly better than the incumbent (HiGHS minimises -profit).
+        h.setOptionValue("objective_bound", float(-(incumbent - data.constant)))
+        return h
 
-        h.cbMipImprovingSolution.subscribe(improving)
-    if restart_if is not None or stop is not None:
-        def interrupt(event) -> None:
-            if restart[0] or (stop is not None and stop()):
-                event.interrupt()
-
-        for hook in (h.cbSimplexInterrupt, h.cbMipInterrupt):
-            hook.subscribe(interrupt)
-    ycol = _add_problem_a(h, data, var, ii, tt, sparse=sparse)
-    # Only schedules strictly better than the incumbent (HiGHS minimises -profit).
-    h.setOptionValue("objective_bound", float(-(incumbent - data.constant)))
+    first = fresh()
+    ycol = _add_problem_a(first, data, var, ii, tt, sparse=sparse)
+    x0 = None
     if start is not None and (start < 0).sum() < n:
         on = np.nonzero(start >= 0)[0]
         if (var[on, start[on]] >= 0).all():
             x0 = np.zeros(nv)
             x0[var[on, start[on]]] = 1.0
             if ycol is not None:   # the cumulative columns follow from x
-                full = np.zeros(h.getNumCol())
+                full = np.zeros(first.getNumCol())
                 full[:nv] = x0
                 xs = np.zeros((n, T))
                 xs[ii, tt] = x0
@@ -301,41 +295,67 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
                 has = ycol >= 0
                 full[ycol[has]] = cum[has]
                 x0 = full
+    seeds = tuple(seeds) or (0,)
+    model = first.getModel() if len(seeds) > 1 else None
+    restart = [False]
+
+    def improving(event) -> None:
+        # HiGHS minimises -(profit): its objective is minus ours without the held constant.
+        if restart_if(data.constant - float(event.data_out.objective_function_value)):
+            restart[0] = True
+
+    def interrupt(event) -> None:
+        if restart[0]:
+            event.interrupt()
+
+    def build(seed: int) -> highspy.Highs:
+        if seed == seeds[0]:
+            h = first
+        else:
+            h = fresh()
+            h.passModel(model)
+        if restart_if is not None:
+            h.cbMipImprovingSolution.subscribe(improving)
+            for hook in (h.cbSimplexInterrupt, h.cbMipInterrupt):
+                hook.subscribe(interrupt)
+        if x0 is not None:
             h.setSolution(_solution(x0))
-    h.run()
-    status = h.getModelStatus()
-    info = h.getInfo()
-    ms = highspy.HighsModelStatus
+        return h
+
+    race = race_mip(build, seeds, stop=stop)
     assign = None
     exact_ok = True
-    if info.primal_solution_status == 2:
+    for k, h in enumerate(race.runs):
+        if h.getInfo().primal_solution_status != 2:
+            continue
         x = np.asarray(h.getSolution().col_value)[:nv]
-        assign = np.full(n, -1, dtype=np.int64)
+        cand = np.full(n, -1, dtype=np.int64)
         on = x > 0.5
-        assign[ii[on]] = tt[on]
-        if not assignment_feasible(data, assign, mask):
-            assign, exact_ok = None, False   # HiGHS's tolerance let it over a budget: no proof from it
-    if assign is not None and assignment_value(data, assign) <= incumbent:
-        assign = None   # a point HiGHS found on the way, no better than the cut-off: not an answer
-    if exact_ok and status in (ms.kOptimal, ms.kInfeasible, ms.kObjectiveBound):
+        cand[ii[on]] = tt[on]
+        if not assignment_feasible(data, cand, mask):
+            if k == race.winner:
+                exact_ok = False   # HiGHS's tolerance let it over a budget: no proof from it
+            continue
+        if assignment_value(data, cand) > (incumbent if assign is None else assignment_value(data, assign)):
+            assign = cand   # (a point no better than the cut-off is not an answer)
+    if exact_ok and race.winner is not None:
         # Closed: nothing in the mask beats max(incumbent, what HiGHS returned).
         return "optimal", assign, (incumbent if assign is None else assignment_value(data, assign))
-    raw = float(info.mip_dual_bound)
-    dual = -raw + data.constant if math.isfinite(raw) else math.inf
+    dual = -race.dual + data.constant if math.isfinite(race.dual) else math.inf
     # HiGHS's dual bound carries its LP tolerances (as lp_bound's LP value does).
     return ("restart" if restart[0] else "time_limit"), assign, dual + MIP_BOUND_SLACK * abs(dual)
 
 
 def lp_neighbourhood(data: GapData, x: np.ndarray, allowed: np.ndarray, incumbent: float, *,
                      time_limit_s: float | None, start: np.ndarray | None = None, support: bool = False,
-                     band: int = 0, integral_tol: float = 1e-6) -> np.ndarray | None:
+                     band: int = 0, integral_tol: float = 1e-6, seeds: Sequence[int] = (0,)) -> np.ndarray | None:
     """Best schedule in the neighbourhood of an LP (or master) solution ``x`` [n, T]: a chunk the LP
     schedules wholly in slot s may arrive in slots ``s - band .. s + band`` or not at all, every
     other chunk anywhere it is allowed (``band = 0``: a relaxation-induced neighbourhood; a band
     of 2 lets whole chunks shift to make room, which found better schedules at J=200); with
     ``support``, every chunk only where ``x`` is positive (for a column-generation master: its
     restricted master as an integer programme, in arrival terms). Solved by :func:`reduced_mip`
-    with the cut-off at ``incumbent``; None when it finds nothing better."""
+    with the cut-off at ``incumbent`` (one HiGHS run per seed, raced); None when it finds nothing better."""
     if support:
         mask = allowed & (x > integral_tol)
     else:
@@ -348,5 +368,6 @@ def lp_neighbourhood(data: GapData, x: np.ndarray, allowed: np.ndarray, incumben
     if start is not None:   # keep the start inside the neighbourhood, so HiGHS begins from it
         on = np.nonzero(start >= 0)[0]
         mask[on, start[on]] = True
-    _, cand, _ = reduced_mip(data, mask, incumbent, time_limit_s=time_limit_s, start=start, proof=False)
+    _, cand, _ = reduced_mip(data, mask, incumbent, time_limit_s=time_limit_s, start=start, proof=False,
+                             seeds=seeds)
     return cand

@@ -63,6 +63,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import SolveError
+from l3gs_opt.models.backends.highs_race import mip_seeds
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
@@ -498,7 +499,7 @@ class _Search(Clock):
         if left is not None and left <= 0:
             return
         cand = lp_neighbourhood(self.data, x, self.allowed0, self.z, time_limit_s=None if left is None else share * left,
-                                start=self.assign, band=band)
+                                start=self.assign, band=band, seeds=mip_seeds())
         if cand is not None:
             self.try_incumbent(cand, self.allowed0, {})
 
@@ -610,6 +611,8 @@ class _Search(Clock):
         self.found: list[np.ndarray] = []     # schedules the MIP side found, handed to the main thread
         self.stop = threading.Event()          # set when one side has closed the gap (or at the end)
         self.mip: dict[str, Any] = {"bound": math.inf, "kind": "", "hit_limit": False, "runs": []}
+        # Alone, the MIP side races HiGHS runs on the cores; beside the price side it has one.
+        self.mip_seeds = (0,) if use_price else mip_seeds()
         run_sides(self.price_side if use_price else None,
                   (lambda: self.mip_side(self.z, self.assign.copy())) if use_mip else None, self.stop, name="exact-mip")
         mip = self.mip
@@ -660,7 +663,7 @@ class _Search(Clock):
             z_before = zh
             outcome, cand, mip_bound = reduced_mip(data, mask, zh, time_limit_s=left, start=start,
                                                    restart_if=restart_if if may_restart else None,
-                                                   stop=stop.is_set)
+                                                   stop=stop.is_set, seeds=self.mip_seeds)
             if cand is not None:   # (feasible in exact bytes and better than zh: reduced_mip checks)
                 self.found.append(cand)
                 zh, start = assignment_value(data, cand), cand

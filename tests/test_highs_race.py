@@ -1,0 +1,123 @@
+"""Racing HiGHS runs of one MIP (models/backends/highs_race.py), against brute force."""
+
+from __future__ import annotations
+
+import itertools
+import time
+
+import highspy
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from l3gs_opt.models.backends.highs import new_highs
+from l3gs_opt.models.backends.highs_race import RaceOutcome, mip_seeds, race_mip
+
+
+def _knapsack_builder(value: list[int], weight: list[int], capacity: int, *, time_limit_s: float | None = None):
+    """A 0-1 knapsack as a HiGHS MIP (minimise -value), built fresh for each seed."""
+    n = len(value)
+
+    def build(seed: int) -> highspy.Highs:
+        h = new_highs(time_limit_s=time_limit_s, mip=True)
+        h.addCols(n, -np.asarray(value, float), np.zeros(n), np.ones(n), 0, np.zeros(n, np.int32),
+                  np.zeros(0, np.int32), np.zeros(0))
+        h.changeColsIntegrality(n, np.arange(n, dtype=np.int32), np.full(n, highspy.HighsVarType.kInteger))
+        h.addRow(-highspy.kHighsInf, float(capacity), n, np.arange(n, dtype=np.int32), np.asarray(weight, float))
+        return h
+
+    return build
+
+
+def _brute(value: list[int], weight: list[int], capacity: int) -> int:
+    best = 0
+    for pick in itertools.product((0, 1), repeat=len(value)):
+        if sum(w for w, p in zip(weight, pick) if p) <= capacity:
+            best = max(best, sum(v for v, p in zip(value, pick) if p))
+    return best
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 60), st.integers(1, 40)), min_size=1, max_size=9),
+       st.integers(0, 120), st.sampled_from([(0,), (0, 1), (3, 7, 11)]))
+def test_race_closes_at_the_brute_force_optimum(items, capacity, seeds):
+    value, weight = [v for v, _ in items], [w for _, w in items]
+    out = race_mip(_knapsack_builder(value, weight, capacity), seeds)
+    assert isinstance(out, RaceOutcome) and len(out.runs) == len(seeds)
+    assert out.winner is not None
+    opt = _brute(value, weight, capacity)
+    winner = out.runs[out.winner]
+    assert -winner.getInfo().objective_function_value == pytest.approx(opt, abs=1e-6)
+    assert out.best is not None
+    assert -out.runs[out.best].getInfo().objective_function_value == pytest.approx(opt, abs=1e-6)
+    # The best dual bound is valid and, for a closed model, the optimum.
+    assert -out.dual >= opt - 1e-6
+    x = np.asarray(out.runs[out.best].getSolution().col_value)
+    assert sum(w for w, xi in zip(weight, x) if xi > 0.5) <= capacity
+
+
+def _hard_builder(n: int = 60, seed: int = 5):
+    # Strongly correlated knapsack: HiGHS needs a real tree on it.
+    rng = np.random.default_rng(seed)
+    weight = rng.integers(10_000, 100_000, n)
+    value = weight + 10_000
+    return _knapsack_builder(value.tolist(), weight.tolist(), int(weight.sum() // 2))
+
+
+def test_stop_ends_every_run_at_once():
+    t = time.perf_counter()
+    out = race_mip(_hard_builder(), (0, 1), stop=lambda: True)
+    assert time.perf_counter() - t < 5.0
+    assert out.winner is None
+    for h in out.runs:
+        assert h.getModelStatus() == highspy.HighsModelStatus.kInterrupt
+
+
+def test_the_first_to_close_ends_the_other():
+    # Run 0 gets an easy knapsack, run 1 a market-split system (hard for branch-and-bound, and no
+    # time limit): the race must end when run 0 closes, run 1 interrupted.
+    n = 30
+    easy = _knapsack_builder(list(range(1, n + 1)), list(range(2, n + 2)), 40)
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 100, (4, n))
+
+    def build(seed: int) -> highspy.Highs:
+        if seed == 0:
+            return easy(seed)
+        h = new_highs(mip=True)
+        h.addCols(n, np.zeros(n), np.zeros(n), np.ones(n), 0, np.zeros(n, np.int32), np.zeros(0, np.int32),
+                  np.zeros(0))
+        h.changeColsIntegrality(n, np.arange(n, dtype=np.int32), np.full(n, highspy.HighsVarType.kInteger))
+        for row in a:
+            b = float(row.sum() // 2)
+            h.addRow(b, b, n, np.arange(n, dtype=np.int32), row.astype(float))
+        return h
+
+    t = time.perf_counter()
+    out = race_mip(build, (0, 1))
+    assert time.perf_counter() - t < 10.0
+    assert out.winner == 0
+    assert out.runs[1].getModelStatus() == highspy.HighsModelStatus.kInterrupt
+
+
+def test_no_seed_is_refused_and_seeds_follow_the_cores(monkeypatch):
+    with pytest.raises(ValueError, match="seed"):
+        race_mip(_hard_builder(), ())
+    import l3gs_opt.models.backends.highs_race as race
+
+    monkeypatch.setattr(race, "RACE_RUNS", 1)
+    assert mip_seeds() == (0,)
+    monkeypatch.setattr(race, "RACE_RUNS", 64)
+    assert 1 <= len(mip_seeds()) <= 64
+
+
+def test_infeasible_model_closes_without_a_solution():
+    def build(seed: int) -> highspy.Highs:
+        h = new_highs(mip=True)
+        h.addCols(1, np.ones(1), np.zeros(1), np.ones(1), 0, np.zeros(1, np.int32), np.zeros(0, np.int32), np.zeros(0))
+        h.changeColsIntegrality(1, np.zeros(1, np.int32), np.full(1, highspy.HighsVarType.kInteger))
+        h.addRow(0.3, 0.7, 1, np.zeros(1, np.int32), np.ones(1))
+        return h
+
+    out = race_mip(build, (0, 1))
+    assert out.winner is not None and out.best is None
