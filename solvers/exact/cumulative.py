@@ -18,7 +18,9 @@ holds one slot's variables again, so the same recipe applies:
 4. **Branch-and-cut**: HiGHS on the arrived-by model over those windows, cut off at the
    incumbent and started from it; its schedules are checked in exact integer bytes. When it finds
    a schedule at which the fixing, redone, would drop at least ``1 - RESTART_SHRINK`` of the
-   variables, it is stopped and restarted on the smaller model.
+   variables, it is stopped and restarted on the smaller model. One HiGHS run per core (different
+   seeds, schedules shared; :func:`~l3gs_opt.models.backends.highs_race.race_mip`): nothing else
+   runs then, and HiGHS's time on one model varies with the seed.
 
 A time limit returns the best schedule with the smaller of the Lagrangian bound and HiGHS's dual
 bound, status ``time_limit``; ``optimal`` only when the certified gap is at most ``GAP_TOL``.

@@ -35,6 +35,8 @@ representation; the bounds, columns, LNS and repair live in their own modules be
    node, branching on "chunk i has arrived by slot t" where the profit drops most (children: by
    t, or after t; either may leave i out), then on ``x[i,t]``; ``branching="both"`` (default) -
    the two at once, HiGHS in a second thread; the answer carries the smaller of their bounds.
+   Where HiGHS runs alone (``mip``, large instances, and the LP neighbourhoods) it runs once per
+   core with different seeds, sharing schedules (:mod:`l3gs_opt.models.backends.highs_race`).
 
 A time limit returns the best schedule with a valid bound, status ``time_limit``; ``optimal``
 only when the certified gap is at most ``GAP_TOL``. ``details["bound_kind"]`` says which bound
