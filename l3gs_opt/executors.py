@@ -7,7 +7,8 @@ finish and an interrupted run loses only the tasks in flight):
 
 * ``jobs=0``: in this process, one after another (no time limit enforced);
 * ``executor="local"``: up to ``jobs`` forked processes at a time, each task in its own, killed
-  once it outlives ``hard_limit_s``;
+  once it outlives ``hard_limit_s``; each is told its share of the cores (:func:`usable_cores`:
+  e.g. how many HiGHS runs :mod:`l3gs_opt.models.backends.highs_race` races);
 * ``executor="dask"``: on a Dask cluster (a local one with ``jobs`` threads by default, or the
   scheduler at ``address``), each task again in its own forked, killable process.
 
@@ -23,21 +24,38 @@ are running can hang in them.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import time
 from typing import Any, Callable, Sequence
 
 from l3gs_opt.errors import L3gsError
 
-__all__ = ["EXECUTORS", "ExecutorError", "run_tasks", "run_guarded"]
+__all__ = ["EXECUTORS", "WORKER_CORES_ENV", "ExecutorError", "run_tasks", "run_guarded", "usable_cores"]
 
 EXECUTORS = ("local", "dask")
+#: Environment variable holding a local worker's share of the cores (set in each worker).
+WORKER_CORES_ENV = "L3GS_WORKER_CORES"
+
+
+def usable_cores() -> int:
+    """Cores this process may use: its share of a local worker pool (:data:`WORKER_CORES_ENV`,
+    when it is a positive integer), else the cores it may run on."""
+    env = os.environ.get(WORKER_CORES_ENV, "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:   # (not on Linux)
+        return os.cpu_count() or 1
 
 
 class ExecutorError(L3gsError, ValueError):
     """A bad executor request (names the option)."""
 
 
-def _fork_worker(conn: Any, work: Callable[[Any], Any], task: Any) -> None:
+def _fork_worker(conn: Any, work: Callable[[Any], Any], task: Any, cores: int | None = None) -> None:
+    if cores is not None:   # this worker's share (solvers that run threads size them by it)
+        os.environ[WORKER_CORES_ENV] = str(cores)
     try:
         conn.send(work(task))
     finally:
@@ -96,6 +114,7 @@ def run_tasks(todo: Sequence[Any], work: Callable[[Any], Any], write: Callable[[
 def _run_local(todo: list, work: Callable, write: Callable, jobs: int, limit: float | None,
                failed: Callable, start_method: str) -> None:
     ctx = mp.get_context(start_method)
+    share = max(1, usable_cores() // jobs)
     running: list[tuple[Any, Any, Any, float]] = []
     queue = list(todo)
     try:
@@ -103,7 +122,7 @@ def _run_local(todo: list, work: Callable, write: Callable, jobs: int, limit: fl
             while queue and len(running) < jobs:
                 task = queue.pop(0)
                 parent, child = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_fork_worker, args=(child, work, task))
+                proc = ctx.Process(target=_fork_worker, args=(child, work, task, share))
                 proc.start()
                 child.close()
                 running.append((task, proc, parent, time.perf_counter()))

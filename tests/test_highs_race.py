@@ -121,3 +121,26 @@ def test_infeasible_model_closes_without_a_solution():
 
     out = race_mip(build, (0, 1))
     assert out.winner is not None and out.best is None
+
+
+def test_worker_processes_race_their_share_of_the_cores(monkeypatch):
+    import os
+
+    import l3gs_opt.models.backends.highs_race as race
+    from l3gs_opt.executors import WORKER_CORES_ENV, run_tasks, usable_cores
+
+    monkeypatch.setattr(race, "RACE_RUNS", 64)
+    monkeypatch.delenv(WORKER_CORES_ENV, raising=False)
+    cores = usable_cores()
+    assert cores == len(os.sched_getaffinity(0))
+    assert len(mip_seeds()) == cores
+    monkeypatch.setenv(WORKER_CORES_ENV, "1")
+    assert mip_seeds() == (0,)
+    monkeypatch.setenv(WORKER_CORES_ENV, "not a number")   # ignored
+    assert len(mip_seeds()) == cores
+    monkeypatch.delenv(WORKER_CORES_ENV)
+    seen = {}
+    run_tasks([1, 2], lambda task: os.environ.get(WORKER_CORES_ENV), lambda task, got: seen.update({task: got}),
+              jobs=2, failed=lambda task, s, why: why)
+    assert seen == {1: str(max(1, cores // 2)), 2: str(max(1, cores // 2))}
+    assert WORKER_CORES_ENV not in os.environ   # (set in the workers only)

@@ -10,7 +10,6 @@ any of them has. Each run's dual bound is valid for the one model, so the best o
 from __future__ import annotations
 
 import math
-import os
 import sys
 import threading
 from dataclasses import dataclass
@@ -18,6 +17,8 @@ from typing import Callable, Sequence
 
 import highspy
 import numpy as np
+
+from l3gs_opt.executors import usable_cores
 
 __all__ = ["RACE_RUNS", "RACE_SWITCH_INTERVAL_S", "RaceOutcome", "mip_seeds", "race_mip"]
 
@@ -47,12 +48,9 @@ class RaceOutcome:
 
 
 def mip_seeds() -> tuple[int, ...]:
-    """Seeds to race: one per core this process may use, at most :data:`RACE_RUNS`."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:   # (not on Linux)
-        cores = os.cpu_count() or 1
-    return tuple(range(max(1, min(RACE_RUNS, cores))))
+    """Seeds to race: one per core this process may use (in a worker pool: its share,
+    :func:`l3gs_opt.executors.usable_cores`), at most :data:`RACE_RUNS`."""
+    return tuple(range(max(1, min(RACE_RUNS, usable_cores()))))
 
 
 def race_mip(build: Callable[[int], highspy.Highs], seeds: Sequence[int], *,
