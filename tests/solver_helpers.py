@@ -8,6 +8,8 @@ costs 1e2..1e9), ``ties`` (few distinct costs and utilities), ``zero`` / ``huge`
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
@@ -76,3 +78,12 @@ def check_answer(inst: Instance, sol) -> None:
     assert is_feasible(inst, sol.arrivals)
     assert sol.objective == evaluate_objective(inst, sol.arrivals)
     assert sol.bound is not None and sol.bound >= sol.objective
+
+
+def kp01_brute(weight: list[int], profit: list[int], capacity: int) -> int:
+    """The optimum of a 0-1 knapsack by enumeration (n <= ~16), in exact integers."""
+    best = 0
+    for pick in itertools.product((0, 1), repeat=len(weight)):
+        if sum(w for w, on in zip(weight, pick) if on) <= capacity:
+            best = max(best, sum(p for p, on in zip(profit, pick) if on))
+    return best

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import time
 
 import highspy
@@ -12,6 +11,7 @@ from hypothesis import given, settings, strategies as st
 
 from l3gs_opt.models.backends.highs import new_highs
 from l3gs_opt.models.backends.highs_race import RaceOutcome, mip_seeds, race_mip
+from solver_helpers import kp01_brute
 
 
 def _knapsack_builder(value: list[int], weight: list[int], capacity: int, *, time_limit_s: float | None = None):
@@ -29,14 +29,6 @@ def _knapsack_builder(value: list[int], weight: list[int], capacity: int, *, tim
     return build
 
 
-def _brute(value: list[int], weight: list[int], capacity: int) -> int:
-    best = 0
-    for pick in itertools.product((0, 1), repeat=len(value)):
-        if sum(w for w, p in zip(weight, pick) if p) <= capacity:
-            best = max(best, sum(v for v, p in zip(value, pick) if p))
-    return best
-
-
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.tuples(st.integers(1, 60), st.integers(1, 40)), min_size=1, max_size=9),
        st.integers(0, 120), st.sampled_from([(0,), (0, 1), (3, 7, 11)]))
@@ -45,7 +37,7 @@ def test_race_closes_at_the_brute_force_optimum(items, capacity, seeds):
     out = race_mip(_knapsack_builder(value, weight, capacity), seeds)
     assert isinstance(out, RaceOutcome) and len(out.runs) == len(seeds)
     assert out.winner is not None
-    opt = _brute(value, weight, capacity)
+    opt = kp01_brute(weight, value, capacity)
     winner = out.runs[out.winner]
     assert -winner.getInfo().objective_function_value == pytest.approx(opt, abs=1e-6)
     assert out.best is not None
@@ -108,7 +100,7 @@ def test_no_seed_is_refused_and_seeds_follow_the_cores(monkeypatch):
     monkeypatch.setattr(race, "RACE_RUNS", 1)
     assert mip_seeds() == (0,)
     monkeypatch.setattr(race, "RACE_RUNS", 64)
-    assert 1 <= len(mip_seeds()) <= 64
+    assert mip_seeds() == tuple(range(min(64, race.usable_cores())))
 
 
 def test_infeasible_model_closes_without_a_solution():
@@ -144,3 +136,18 @@ def test_worker_processes_race_their_share_of_the_cores(monkeypatch):
               jobs=2, failed=lambda task, s, why: why)
     assert seen == {1: str(max(1, cores // 2)), 2: str(max(1, cores // 2))}
     assert WORKER_CORES_ENV not in os.environ   # (set in the workers only)
+
+
+def test_pick_keeps_the_best_checked_solution_and_refuses_an_unchecked_proof():
+    # One run (so the winner is run 0, whatever the threads' timing). The exact check below refuses
+    # every point with item 0 chosen, the floor what is worth no more than it.
+    value, weight = [10, 7, 6], [5, 4, 3]
+    out = race_mip(_knapsack_builder(value, weight, 8), (0,))
+    assert out.winner == 0
+    decode = (lambda col: tuple(int(c > 0.5) for c in col))
+    worth = (lambda x: sum(v for v, on in zip(value, x) if on))
+    best, ok = out.pick(decode, lambda x: True, worth, 0.0)
+    assert worth(best) == kp01_brute(weight, value, 8) == 16 and ok
+    assert out.pick(decode, lambda x: True, worth, 16.0) == (None, True)   # nothing above the floor
+    best, ok = out.pick(decode, lambda x: x[0] == 0, worth, 0.0)            # (the optimum takes item 0)
+    assert best is None and not ok

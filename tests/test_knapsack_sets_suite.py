@@ -7,7 +7,6 @@ files (skipped without ../shared), and the report's counts on hand-made records.
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 
 import numpy as np
@@ -20,17 +19,10 @@ from l3gs_opt.bench.suites import KNAPSACK_DIR_ENV, default_methods, suite_specs
 from l3gs_opt.methods import solve
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.solvers import _kp01
+from solver_helpers import kp01_brute
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "reference" / "knapsack"
 needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason=f"{SHARED} is absent (the public knapsack sets)")
-
-
-def _brute(w: list[int], p: list[int], c: int) -> int:
-    best = 0
-    for mask in itertools.product((0, 1), repeat=len(w)):
-        if sum(wi for wi, m in zip(w, mask) if m) <= c:
-            best = max(best, sum(pi for pi, m in zip(p, mask) if m))
-    return best
 
 
 @st.composite
@@ -53,7 +45,7 @@ def _instances(draw):
 def test_kp01_equals_brute_force(case):
     w, p, c, units = case
     res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=units)
-    opt = _brute(w, p, c)
+    opt = kp01_brute(w, p, c)
     assert res.optimal and res.value == opt == res.bound
     assert int(np.array(w)[res.take].sum()) <= c and int(np.array(p)[res.take].sum()) == opt
 
@@ -63,7 +55,7 @@ def test_kp01_equals_brute_force(case):
 def test_kp01_stopped_early_keeps_a_valid_bound(case):
     w, p, c, units = case
     res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=units, max_states=2)
-    opt = _brute(w, p, c)
+    opt = kp01_brute(w, p, c)
     assert res.value <= opt <= res.bound
     assert not res.optimal or res.value == opt
 
@@ -74,7 +66,7 @@ def test_bb_on_one_layer_instances_equals_brute_force(case):
     w, p, c, _ = case
     inst = Instance("layered", bandwidth=[c], cost=np.array(w)[:, None], utility=np.array(p, dtype=float)[None, :, None])
     sol = solve(inst, "bb", slot=0)
-    opt = _brute(w, p, c)
+    opt = kp01_brute(w, p, c)
     assert sol.status.value == "optimal" and sol.objective == opt and sol.bound >= opt
 
 
@@ -85,7 +77,7 @@ def test_rounded_dps_bracket_the_optimum(case, K):
     optimum, of that value), weights rounded up a feasible solution."""
     w, p, c, _ = case
     w, p = np.array(w, dtype=np.int64), np.array(p, dtype=np.int64)
-    opt = _brute(w.tolist(), p.tolist(), c)
+    opt = kp01_brute(w.tolist(), p.tolist(), c)
     den, m = c + 1, K * c // (c + 1)
     down = K * w // den
     assert _kp01._dp_value(down, p, m) >= opt
@@ -103,7 +95,7 @@ def test_scale_just_below_the_groups_proves_at_the_root():
     c, units = 10**6, 64
     w = [c // 2**i + int(rng.integers(1, 6)) for i in range(1, 7) for _ in range(2)] + [3, 4, 5, 7]
     p = [wi + int(rng.integers(-3, 4)) for wi in w]
-    opt = _brute(w, p, c)
+    opt = kp01_brute(w, p, c)
     res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=units)
     assert res.optimal and res.value == opt and res.stats["stages"] == 0 and res.stats["root_bound"] == opt
     delta = -(-c // units)
@@ -119,7 +111,7 @@ def test_least_loss_scale_proves_at_the_root_where_powers_of_two_do_not():
     c, eps = 10**6, 0.0134
     w = [int((1 / 2**i + eps) * c) + int(rng.integers(1, 6)) for i in range(1, 6) for _ in range(2)] + [3, 4, 5]
     p = [wi + int(rng.integers(-3, 4)) for wi in w]
-    opt = _brute(w, p, c)
+    opt = kp01_brute(w, p, c)
     res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=1024)
     num = int(res.stats["scale"].split("/")[0])
     assert res.optimal and res.value == opt and res.stats["stages"] == 0 and res.stats["root_bound"] == opt

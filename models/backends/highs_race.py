@@ -13,7 +13,7 @@ import math
 import sys
 import threading
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import highspy
 import numpy as np
@@ -45,6 +45,25 @@ class RaceOutcome:
     winner: int | None
     best: int | None
     dual: float
+
+    def pick(self, decode: Callable[[np.ndarray], Any], check: Callable[[Any], bool],
+             value: Callable[[Any], float], floor: float) -> tuple[Any | None, bool]:
+        """The best of the runs' solutions (``decode``d from HiGHS's column values) that passes the
+        caller's exact ``check`` and is worth more than ``floor`` (None: none is), and whether
+        the winner's own solution passed (when it did not, its "closed" proves nothing: HiGHS's
+        tolerances let it accept a point the exact check refuses)."""
+        best, best_value, winner_ok = None, floor, True
+        for k, h in enumerate(self.runs):
+            if h.getInfo().primal_solution_status != 2:
+                continue
+            cand = decode(np.asarray(h.getSolution().col_value))
+            if not check(cand):
+                winner_ok = winner_ok and k != self.winner
+                continue
+            v = value(cand)
+            if v > best_value:
+                best, best_value = cand, v
+        return best, winner_ok
 
 
 def mip_seeds() -> tuple[int, ...]:

@@ -376,18 +376,8 @@ class _Run(Clock):
             return h
 
         race = race_mip(build, mip_seeds())
-        assign, exact_ok = None, True
-        for k, h in enumerate(race.runs):
-            if h.getInfo().primal_solution_status != 2:
-                continue
-            cand = schedule_of(np.asarray(h.getSolution().col_value))
-            if not schedule_feasible(data, cand, self.windows.first):
-                if k == race.winner:
-                    exact_ok = False   # HiGHS's tolerance let it over a budget: no proof from it
-                continue
-            if assignment_value(data, cand) > max(self.z, -math.inf if assign is None else
-                                                   assignment_value(data, assign)):
-                assign = cand
+        assign, exact_ok = race.pick(schedule_of, lambda a: schedule_feasible(data, a, self.windows.first),
+                                     lambda a: assignment_value(data, a), self.z)
         if exact_ok and race.winner is not None:
             return "optimal", assign, self.z if assign is None else assignment_value(data, assign)
         dual = data.constant - race.dual if math.isfinite(race.dual) else math.inf

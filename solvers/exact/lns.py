@@ -295,7 +295,7 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
                 has = ycol >= 0
                 full[ycol[has]] = cum[has]
                 x0 = full
-    seeds = tuple(seeds) or (0,)
+    seeds = tuple(seeds)
     model = first.getModel() if len(seeds) > 1 else None
     restart = [False]
 
@@ -323,21 +323,16 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
         return h
 
     race = race_mip(build, seeds, stop=stop)
-    assign = None
-    exact_ok = True
-    for k, h in enumerate(race.runs):
-        if h.getInfo().primal_solution_status != 2:
-            continue
-        x = np.asarray(h.getSolution().col_value)[:nv]
+
+    def decode(col: np.ndarray) -> np.ndarray:
         cand = np.full(n, -1, dtype=np.int64)
-        on = x > 0.5
+        on = col[:nv] > 0.5
         cand[ii[on]] = tt[on]
-        if not assignment_feasible(data, cand, mask):
-            if k == race.winner:
-                exact_ok = False   # HiGHS's tolerance let it over a budget: no proof from it
-            continue
-        if assignment_value(data, cand) > (incumbent if assign is None else assignment_value(data, assign)):
-            assign = cand   # (a point no better than the cut-off is not an answer)
+        return cand
+
+    # (A point no better than the cut-off is not an answer.)
+    assign, exact_ok = race.pick(decode, lambda a: assignment_feasible(data, a, mask),
+                                 lambda a: assignment_value(data, a), incumbent)
     if exact_ok and race.winner is not None:
         # Closed: nothing in the mask beats max(incumbent, what HiGHS returned).
         return "optimal", assign, (incumbent if assign is None else assignment_value(data, assign))
