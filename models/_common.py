@@ -7,7 +7,7 @@ import numpy as np
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import Reduction
 
-from .linear import BYTE_SPLIT_ABOVE, ModelBuilder, index_name
+from .linear import ModelBuilder, index_name
 
 Key = tuple[int, int, int]
 
@@ -36,8 +36,16 @@ def add_arrivals(b: ModelBuilder, inst: Instance, red: Reduction,
 
 
 def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redundant: bool) -> None:
-    """Byte budgets. Per slot: ``sum c x[., ., t] <= B[t]``. Cumulative: an unspent-bytes carry
-    ``r[t] = r[t-1] + B[t] - sum c x[., ., t] >= 0`` (O(items) non-zeros instead of O(items T)).
+    """Byte budgets. Per slot: ``sum c x[., ., t] <= B[t]``. Cumulative: prefix rows "arrivals up
+    to t cost at most the bytes up to t" over the binary x (exact digits above 2**31 bytes,
+    :meth:`ModelBuilder.byte_row`).
+
+    The prefix rows take O(items T) non-zeros. The sparser carry form (a byte carry
+    ``r[t] = r[t-1] + B[t] - sum c x[., ., t] >= 0`` per slot, up to ~1.8e8 bytes at J=20, T=60)
+    made both HiGHS 1.14 (carry declared integer) and CBC 2.10.3 (carry continuous) claim wrong
+    optima: T60-J20-s9 (HiGHS 228,703.84 "optimal", 229,046.60 feasible in that very model), s6 and
+    s8 (CBC); on the prefix rows all three close at the right optimum
+    (``benchmarks/results/exact_cumulative.md``, ninth session's notes).
     """
     by_slot: dict[int, list[Key]] = {}
     for key in x:
@@ -54,25 +62,10 @@ def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redun
     slots = sorted(by_slot) if drop_redundant else list(range(inst.T))
     if drop_redundant and slots and _cumulative_redundant(inst, x, slots, bandwidth):
         return
-    if max(sum(bandwidth), int(inst.cost.max(initial=0))) > BYTE_SPLIT_ABOVE:
-        # The carry r[t] would run to the total bandwidth in a continuous column: beyond 2**31
-        # bytes, prefix rows "arrivals up to t cost at most the bandwidth up to t" over the
-        # binary x go through byte_row's exact digits instead.
-        for t in slots:
-            keys = [k for s in slots if s <= t for k in by_slot.get(s, [])]
-            b.byte_row(f"cumulative[{t}]", [x[k] for k in keys], [int(inst.cost[j, l]) for j, l, _ in keys],
-                       sum(bandwidth[:t + 1]))
-        return
-    prev_r, prev_t = None, -1
     for t in slots:
-        keys = by_slot.get(t, [])
-        # Bytes that become available between the previous carry and this slot.
-        extra = float(sum(bandwidth[prev_t + 1:t + 1]))
-        r = b.var(f"r[{t}]", lb=0.0, ub=np.inf, integer=False, integral_ok=True)
-        cols = [r] + [x[k] for k in keys] + ([prev_r] if prev_r is not None else [])
-        vals = [1.0] + [float(inst.cost[j, l]) for j, l, _ in keys] + ([-1.0] if prev_r is not None else [])
-        b.row(f"carry[{t}]", cols, vals, lb=extra, ub=extra)
-        prev_r, prev_t = r, t
+        keys = [k for s in slots if s <= t for k in by_slot.get(s, [])]
+        b.byte_row(f"cumulative[{t}]", [x[k] for k in keys], [int(inst.cost[j, l]) for j, l, _ in keys],
+                   sum(bandwidth[:t + 1]))
 
 
 def _cumulative_redundant(inst: Instance, x: dict[Key, int], slots: list[int], bandwidth: list[int]) -> bool:

@@ -6,8 +6,7 @@ Variables, for active items i (see :mod:`l3gs_opt.problem.items_presolve`) and s
   ``y[t] = y[t-1] + x[t]`` (so each item arrives at most once);
 * ``w[i,t]`` in [0, 1] for items of groups with two or more (active) items: i is the item its
   group shows at slot t, ``sum_{i in g} w[i,t] <= 1`` and ``w[i,t] <= y[i,t-s]`` (s = 0, or 1
-  under next-slot availability); for integral ``y`` the best ``w`` is integral;
-* ``r[t]`` (cumulative budget only): unspent bytes carried to the next slot.
+  under next-slot availability); for integral ``y`` the best ``w`` is integral.
 
 ``max sum gain[t,i] w[i,t] + sum_{i alone in its group} gain[t+s,i] y[i,t] + held constant``
 subject to byte budgets, and per edge ``parent -> child`` the precedence

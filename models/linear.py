@@ -46,8 +46,8 @@ class LinearModel:
     decode : list of (variable index, tuple of (j, l, t))
         A variable at value 1 means these chunks arrive.
     integral_ok : bool array [n]
-        Continuous variables that some optimum has integral anyway (shown-version ``w``,
-        unspent-bytes carry ``r``): a backend that needs integers (CP-SAT) may declare them so.
+        Continuous variables that some optimum has integral anyway (shown-version ``w``): a
+        backend that needs integers (CP-SAT) may declare them so.
     slot : int or None
         The slot of a single-slot model.
     byte_digits : bool

@@ -4,11 +4,12 @@ PuLP reports ``Optimal`` for some CBC runs stopped by a time limit (coin-or/pulp
 711; seen here with PuLP 3.3 and CBC 2.10.3). So the status and the bound are read from CBC's own
 log (``Result - ...``, ``Upper bound:``), never from PuLP's status.
 
-CBC's own "Optimal" is a claim, not a certificate: on T60-J20-s6 under the cumulative budget
-(``benchmarks/results/exact_cumulative.md``) CBC 2.10.3 reported "Optimal solution found" at
-297,116.33, where schedules of 297,169.6 (HiGHS) and 297,194.76 (``exact``, proven) exist; the
-same with presolve, preprocessing, cuts and heuristics off (and 296,987.7 with strong branching
-off). The benchmark reports count an optimum claimed below a known schedule as wrong.
+CBC's own "Optimal" is a claim, not a certificate: on T60-J20-s6 and s8 under the cumulative
+budget, written then with a continuous byte carry per slot, CBC 2.10.3 reported "Optimal solution
+found" below schedules other methods found (s6: 297,116.33 against 297,194.76), also with presolve,
+preprocessing, cuts and heuristics off. On the prefix rows the models use now it closes at the
+right optimum (models/_common.py ``add_budget``); the benchmark reports count an optimum claimed
+below a known schedule as wrong.
 """
 
 from __future__ import annotations
