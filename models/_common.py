@@ -62,8 +62,9 @@ def add_budget(b: ModelBuilder, inst: Instance, x: dict[Key, int], *, drop_redun
     slots = sorted(by_slot) if drop_redundant else list(range(inst.T))
     if drop_redundant and slots and _cumulative_redundant(inst, x, slots, bandwidth):
         return
+    keys: list[Key] = []   # arrivals in the slots up to t
     for t in slots:
-        keys = [k for s in slots if s <= t for k in by_slot.get(s, [])]
+        keys += by_slot.get(t, [])
         b.byte_row(f"cumulative[{t}]", [x[k] for k in keys], [int(inst.cost[j, l]) for j, l, _ in keys],
                    sum(bandwidth[:t + 1]))
 

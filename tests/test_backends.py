@@ -135,3 +135,14 @@ def test_gap_form_rejects_separate_and_slot():
         solve(inst, "ilp", slot=7)
     with pytest.raises(SolveError, match="no GAP form"):
         solve(random_instance(np.random.default_rng(1)), "ilp", form="gap", slot=0)
+
+
+def test_cpsat_refuses_an_unbounded_column_by_name():
+    from l3gs_opt.models.linear import ModelBuilder
+
+    b = ModelBuilder("I")
+    x = b.var("x", obj=1.0)
+    r = b.var("spare", lb=0.0, ub=float("inf"), integer=True)
+    b.row("cap", [x, r], [1.0, 1.0], lb=1.0, ub=1.0)
+    with pytest.raises(SolveError, match="'spare' is unbounded"):
+        solve_model(b.build(), "cpsat", time_limit_s=5)

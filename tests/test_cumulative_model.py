@@ -37,3 +37,4 @@ def test_backend_optimum_agrees_with_exact_on_the_instances_the_carry_form_broke
     got = solve(inst, "ilp", backend=backend, time_limit_s=120)
     assert ref.status is Status.OPTIMAL and got.status is Status.OPTIMAL
     assert got.objective == pytest.approx(ref.objective, rel=GAP_TOL)
+

@@ -46,18 +46,17 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     if not (model.integral_ok.all() and _integral(model.matrix.data) and _integral(model.row_lb)
             and _integral(model.row_ub) and _integral(model.lb) and _integral(model.ub)):
         raise SolveError("backend 'cpsat' needs integer variables and coefficients; this model has others")
-    ub = model.ub.copy()
-    if not np.isfinite(ub).all():
-        # Unbounded carries (unspent bytes) are bounded by the total of the finite row bounds.
-        cap = float(np.abs(model.row_ub[np.isfinite(model.row_ub)]).sum()
-                    + np.abs(model.row_lb[np.isfinite(model.row_lb)]).sum()) + 1.0
-        ub[~np.isfinite(ub)] = cap
-    weight = float(np.sum(np.abs(model.objective) * np.maximum(np.abs(ub), np.abs(model.lb))))
+    unbounded = np.nonzero(~np.isfinite(model.ub) | ~np.isfinite(model.lb))[0]
+    if len(unbounded):
+        # (The cumulative budget's byte carry was the one such column; its rows are prefix rows now.)
+        raise SolveError(f"backend 'cpsat' needs finite variable bounds; variable "
+                         f"{model.var_names[int(unbounded[0])]!r} is unbounded")
+    weight = float(np.sum(np.abs(model.objective) * np.maximum(np.abs(model.ub), np.abs(model.lb))))
     scale = 2.0 ** math.floor(math.log2(_TARGET / weight)) if weight > 0 else 1.0
     scaled = np.round(model.objective * scale)
-    error = float(np.sum(np.abs(model.objective - scaled / scale) * np.maximum(np.abs(ub), np.abs(model.lb))))
+    error = float(np.sum(np.abs(model.objective - scaled / scale) * np.maximum(np.abs(model.ub), np.abs(model.lb))))
     m = cp_model.CpModel()
-    xs = [m.new_int_var(int(model.lb[i]), int(ub[i]), f"v{i}") for i in range(model.size.variables)]
+    xs = [m.new_int_var(int(model.lb[i]), int(model.ub[i]), f"v{i}") for i in range(model.size.variables)]
     csr = model.matrix
     for r in range(model.size.constraints):
         cols = csr.indices[csr.indptr[r]:csr.indptr[r + 1]]
