@@ -97,12 +97,23 @@ def test_console_script_installed():
 
 
 def test_demo_runs_and_reports(tmp_path, capsys):
+    # Step 5 (the paper's experiments on the real quick plan, ~9 min here) is the slow test below.
+    code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--time-limit", "10", "--no-bench",
+                         "--no-scene", "--no-experiments")
+    assert code == 0, err
+    assert "all agree" in out and "5. the paper's experiments" not in out
+    lines = (tmp_path / "demo" / "results.jsonl").read_text().splitlines()
+    assert len(lines) >= 12 and all(json.loads(line)["status"] in ("optimal", "feasible") for line in lines)
+
+
+@pytest.mark.slow
+def test_demo_step_five_on_the_real_quick_plan(tmp_path, capsys):
+    """The demo's step 5 exactly as `scripts/demo.sh` runs it (the quick plan, not a tiny one)."""
     code, out, err = run(capsys, "demo", "--out", str(tmp_path / "demo"), "--time-limit", "10", "--no-bench",
                          "--no-scene")
     assert code == 0, err
-    assert "all agree" in out
-    lines = (tmp_path / "demo" / "results.jsonl").read_text().splitlines()
-    assert len(lines) >= 12 and all(json.loads(line)["status"] in ("optimal", "feasible") for line in lines)
+    assert "5. the paper's experiments, quick" in out and "l3gs vs the baselines' mean" in out
+    assert (tmp_path / "demo" / "experiments" / "report.md").is_file()
 
 
 @pytest.mark.slow
