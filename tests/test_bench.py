@@ -130,7 +130,10 @@ def test_interrupted_run_resumes_without_losing_records(tmp_path):
     out = tmp_path / "bench"
     cmd = [sys.executable, "-m", "l3gs_opt.cli.main", "bench", "--suite", "stiff", "--methods", "ilp/highs,ilp/cbc",
            "--out", str(out), "--no-progress", "--time-limit", "30"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # As from a terminal: a suite started as a background job (`pytest ... &`) ignores SIGINT, and
+    # Python then leaves it ignored in the child, so Ctrl-C would never arrive.
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     results = out / "results.jsonl"
     deadline = time.time() + 120
     while time.time() < deadline and (not results.exists() or len(results.read_text().splitlines()) < 5):

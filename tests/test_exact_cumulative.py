@@ -177,7 +177,7 @@ def mid_instance():
     return inst, ref.objective
 
 
-@pytest.mark.parametrize("limit_s", [0.3, 1.5])
+@pytest.mark.parametrize("limit_s", [0.3, 1.5, 4.0])
 def test_time_limit_returns_valid_bound_and_feasible_schedule(mid_instance, limit_s: float) -> None:
     inst, best = mid_instance
     sol = solve(inst, "exact", time_limit_s=limit_s)
@@ -188,6 +188,13 @@ def test_time_limit_returns_valid_bound_and_feasible_schedule(mid_instance, limi
         assert close(sol.objective, best)
     else:
         assert sol.runtime_s < limit_s + 2.0
+    # Every trace point is a valid (schedule, bound) pair, and the trace only improves (the raced
+    # HiGHS runs report their own dual bounds; the trace keeps the smallest so far).
+    trace = np.array(sol.details["trace"], dtype=np.float64)
+    assert len(trace) and (np.diff(trace[:, 0]) >= 0).all()
+    assert (trace[:, 1] <= best * (1 + 1e-9)).all() and (trace[:, 2] >= best * (1 - 1e-9)).all()
+    # (the first points' bound is inf: compare neighbours, not differences)
+    assert (trace[1:, 1] >= trace[:-1, 1] - 1e-9 * best).all() and (trace[1:, 2] <= trace[:-1, 2] + 1e-9 * best).all()
 
 
 def test_start_heuristics_option_and_no_start() -> None:

@@ -278,6 +278,14 @@ def _plt():
     return plt
 
 
+def _slant_labels(ax) -> None:
+    """Method names such as ``l3gs-noseg[visibility]`` overlap when set level under bars."""
+    ax.tick_params(axis="x", labelsize=8)
+    for label in ax.get_xticklabels():
+        label.set_rotation(30)
+        label.set_horizontalalignment("right")
+
+
 def _plot_over_time(curves: dict, path: Path, title: str) -> None:
     """One line per method; a method's utilities share its colour and differ by line style."""
     plt = _plt()
@@ -321,8 +329,10 @@ def _plot_bars(s: dict, path: Path) -> None:
     ax.set_ylim(0, 1.1)
     ax.set_ylabel("mean SSIM")
     ax.grid(axis="y", alpha=0.3)
+    _slant_labels(ax)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    plt.close(fig)
     plt.close(fig)
 
 
@@ -397,6 +407,7 @@ def _plot_latency(lat: dict, path: Path) -> None:
     ax.set_title("per-slot latency of the client's steps (mean over runs)", fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(axis="y", alpha=0.3)
+    _slant_labels(ax)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -634,7 +645,7 @@ def write_report(runs: str | os.PathLike[str] | Sequence[dict], out_dir: str | o
     if s["ceiling"]:
         _plot_ceiling(s["ceiling"], s["ceiling_notes"], out / "ceiling.png")
         chk = s["ceiling_checks"]
-        L += [f"Ceiling: Problem I (layered bundles) or II (separate bundles) with perfect knowledge -- the true "
+        L += ["Ceiling: Problem I (layered bundles) or II (separate bundles) with perfect knowledge -- the true "
               "per-slot utilities of the viewer's poses and the true bandwidth, cumulative budget (the link carries "
               "a cut-off chunk over) -- solved by " + ", ".join(s["ceiling_methods"])
               + ". A scheduler's utility counts "

@@ -322,14 +322,16 @@ class _Run(Clock):
         restart = [False]
         z_before, best = self.z, [self.z]
         last = [time.perf_counter()]
+        traced = [self.bound]
 
         def note(out) -> None:
             # A trace point: the best schedule and HiGHS's dual bound (valid above z_before: every
-            # better schedule lies in the windows), at most one a TRACE_EVERY_S.
+            # better schedule lies in the windows), at most one a TRACE_EVERY_S. The raced runs
+            # report their own dual bounds: the trace keeps the smallest so far, so it never rises.
             raw = float(out.mip_dual_bound)
             dual = data.constant - raw if math.isfinite(raw) else math.inf
-            bound = min(self.bound, max(z_before, dual + MIP_BOUND_SLACK * abs(dual)))
-            self.trace.append((self.now(), best[0], max(bound, best[0])))
+            traced[0] = min(traced[0], max(z_before, dual + MIP_BOUND_SLACK * abs(dual)))
+            self.trace.append((self.now(), best[0], max(traced[0], best[0])))
             last[0] = time.perf_counter()
 
         cols = var >= 0
