@@ -333,7 +333,6 @@ def _plot_bars(s: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    plt.close(fig)
 
 
 def _grouped(ax, groups: list[str], series: dict[str, list[float]], ylabel: str) -> None:
