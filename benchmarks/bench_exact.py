@@ -50,6 +50,14 @@ def _prefix(args: argparse.Namespace) -> str:
     return "exact" if args.budget == "per_slot" else f"exact_{args.budget}"
 
 
+def bench_instance(spec, budget: str):
+    """The spec's instance under ``budget`` ("per_slot" as the suite builds it, or "cumulative")."""
+    inst = spec.build()
+    if inst.options.budget == budget:
+        return inst
+    return inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": budget}))
+
+
 def specs(seeds_20: int, seeds_200: int, seeds_50: int = 0) -> list:
     out = []
     for J, seeds in ((20, seeds_20), (50, seeds_50), (200, seeds_200)):
@@ -78,9 +86,7 @@ def run(args: argparse.Namespace) -> None:
                   rec.get("gap"), f"{rec.get('runtime_s', 0):.1f}s", flush=True)
 
         for spec in specs(args.seeds_20, args.seeds_200, args.seeds_50):
-            inst = spec.build()
-            if args.budget != inst.options.budget:
-                inst = inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": args.budget}))
+            inst = bench_instance(spec, args.budget)
             base = {"instance_id": spec.instance_id, "params": spec.params, "J": inst.J, "T": inst.T, "L": inst.L,
                     "budget": args.budget}
             best_obj = -math.inf

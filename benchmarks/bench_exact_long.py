@@ -19,9 +19,10 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_exact import bench_instance  # noqa: E402
 from machine import machine_info  # noqa: E402
 
-from l3gs_opt import Options, solve  # noqa: E402
+from l3gs_opt import solve  # noqa: E402
 from l3gs_opt.bench.suites import suite_specs  # noqa: E402
 
 
@@ -50,9 +51,7 @@ def main() -> int:
         for spec in specs:
             if (spec.instance_id, args.budget, args.time_limit) in done:
                 continue
-            inst = spec.build()
-            if inst.options.budget != args.budget:
-                inst = inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": args.budget}))
+            inst = bench_instance(spec, args.budget)
             load = os.getloadavg()
             sol = solve(inst, "exact", time_limit_s=args.time_limit)
             rec = {"instance_id": spec.instance_id, "budget": args.budget, "loadavg_before": load, **sol.to_dict(),
