@@ -261,3 +261,77 @@ def test_polyak_step_halves_after_five_stalls_and_is_spent_below_its_floor() -> 
     assert step.record(True) and step.theta == 1.0
     records = [step.record(False) for _ in range(5 * 14)]
     assert all(records[:-1]) and not records[-1] and step.theta == 0.5 ** 14
+
+
+def _solve_model(lp) -> float | None:
+    """Minus the optimum of a HiGHS model (None: infeasible)."""
+    import highspy
+
+    if lp.num_col_ == 0:
+        return 0.0
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.passModel(lp)
+    h.run()
+    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        return None
+    return -float(h.getInfo().objective_function_value)
+
+
+@pytest.mark.parametrize("opts", CUMULATIVE, ids=option_id)
+@pytest.mark.parametrize("seed", range(6))
+def test_arrivals_on_event_slots_keep_the_optimum(opts: Options, seed: int) -> None:
+    """The arrived-by MIP with arrivals only in event slots has brute force's optimum (utilities
+    with zeros in a fifth of the (slot, object, layer) entries, so layers of one object differ), and
+    its LP has the full model's value."""
+    from l3gs_opt.solvers.exact.cumulative import arrived_by_model
+    from l3gs_opt.solvers.exact.cumulative_data import event_slots
+
+    rng = np.random.default_rng(900 + seed)
+    inst = random_instance(rng, T=5, J=2, L=3, options=opts, held_p=0.3 if seed % 2 else 0.0, zero_p=0.5, tight=0.4)
+    data = link_data(inst)
+    ref = solve_brute_force(inst).objective
+    full = Windows(data.first.copy(), np.full(data.n, data.T, dtype=np.int64), closed=False)
+    events = event_slots(data)
+    lp, var, _ = arrived_by_model(data, full, relax=False, events=events)
+    assert lp.num_col_ == int((events & (np.arange(data.T)[None, :] >= data.first[:, None])).sum())
+    assert close(data.constant + _solve_model(lp), ref)
+    relaxed = [_solve_model(arrived_by_model(data, full, relax=True, events=e)[0]) for e in (None, events)]
+    assert abs(relaxed[0] - relaxed[1]) <= 1e-7 * max(1.0, abs(relaxed[0]))
+
+
+@settings(max_examples=150, **SETTINGS)
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), zero_p=st.sampled_from([0.0, 0.3, 0.7]))
+def test_delaying_arrivals_to_event_slots_keeps_value_and_feasibility(seed: int, opt: int, zero_p: float) -> None:
+    """Any feasible schedule (random send order, each chunk in the first slot the link allows),
+    normalised: still feasible in exact bytes, every arrival in an event slot, the same value
+    (summed independently by ``evaluate_objective``)."""
+    from l3gs_opt.solvers.exact.cumulative_data import event_slots, normalize_arrivals
+
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=6, J=3, L=3, options=CUMULATIVE[opt], held_p=0.3 if seed % 2 else 0.0,
+                           zero_p=zero_p, tight=0.5)
+    data = link_data(inst)
+    assign = lp_order(data, (rng.random((data.n, 1)) * np.ones((1, data.T)) > 0.3).astype(float)
+                      * (np.arange(data.T)[None, :] >= rng.integers(0, data.T, size=(data.n, 1))))
+    assert schedule_feasible(data, assign)
+    events = event_slots(data)
+    out = normalize_arrivals(data, assign, events)
+    assert schedule_feasible(data, out) and is_feasible(inst, data.arrivals(out))
+    on = out >= 0
+    assert events[np.nonzero(on)[0], out[on]].all()
+    assert ((out >= assign) | (out < 0)).all() and ((assign >= 0) | (out < 0)).all()
+    a, b = evaluate_objective(inst, data.arrivals(assign)), evaluate_objective(inst, data.arrivals(out))
+    assert abs(a - b) <= 1e-9 * max(1.0, abs(a))
+
+
+def test_windows_on_events_close_when_a_needed_chunk_has_no_event_slot() -> None:
+    from l3gs_opt.solvers.exact.cumulative_data import windows_on_events
+
+    events = np.array([[False, True, False, True], [False, False, False, False]])
+    w = windows_on_events(Windows(np.array([0, 0]), np.array([4, 4]), closed=False), events)
+    assert w.first.tolist() == [1, 4] and not w.closed
+    w = windows_on_events(Windows(np.array([2, 0]), np.array([2, 4]), closed=False), events)
+    assert w.closed   # chunk 0 must arrive by slot 2, and slot 3 is its first event slot from 2
+    w = windows_on_events(Windows(np.array([0, 0]), np.array([2, 4]), closed=False), events)
+    assert not w.closed and w.by.tolist() == [1, 4]

@@ -40,8 +40,8 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
 from .clock import Clock
-from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, link_data, link_lagrangian,
-                              link_subgradient, schedule_feasible)
+from .cumulative_data import (LinkData, LinkMultipliers, Windows, event_slots, fix_windows, link_data, link_lagrangian,
+                              link_subgradient, normalize_arrivals, schedule_feasible, windows_on_events)
 from .cumulative_order import improve_order
 from .lagrange import assignment_value
 from .lns import MIP_BOUND_SLACK
@@ -66,11 +66,18 @@ MIP_MARGIN_S = 0.5
 TRACE_EVERY_S = 1.0
 
 
-def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
+def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool, events: np.ndarray | None = None):
     """The arrived-by model over the windows as a ``highspy.HighsLp`` (minimising minus the value):
-    ``(lp, var, rows)`` with ``var`` [n, T] the column of ``z[i,t]`` (-1: none) and ``rows`` the first
-    row of each family
-    (``"budget"``, ``"stay"``, ``"order"``) plus the (chunk, slot) of every linking row."""
+    ``(lp, var, rows)`` with ``var`` [n, T] the column of ``z[i,t]`` (-1: none, z = 0) and ``rows``
+    the first row of each family (``"budget"``, ``"stay"``, ``"order"``) plus the (chunk, slot) of
+    every linking row.
+
+    With ``events`` (:func:`.cumulative_data.event_slots`) chunk i may arrive only in those slots:
+    one column per event slot in its window, shared by the slots up to its next one (``var`` maps
+    them all), so the stay rows link consecutive event slots and the rows' (chunk, slot) are those
+    of the first column. A fifth of the columns on the bench instances, the same optimum and the
+    same LP value (fractional arrivals may be delayed too); the LP's duals are then not those of the
+    full model's rows, so the root LP is solved without ``events``."""
     from scipy import sparse
 
     from l3gs_opt.models.backends.highs import sparse_lp
@@ -79,10 +86,14 @@ def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
     first, by = windows.first, windows.by
     tt = np.arange(T)
     has_var = tt[None, :] >= first[:, None]
-    ii, ts = np.nonzero(has_var)
-    var = -np.ones((n, T), dtype=np.int64)
-    var[ii, ts] = np.arange(len(ii))
-    nv = len(ii)
+    own = has_var if events is None else has_var & events   # the slots with a column of their own
+    ci, ct = np.nonzero(own)                                  # row-major: by chunk, then slot
+    nv = len(ci)
+    col_at = -np.ones((n, T), dtype=np.int64)
+    col_at[ci, ct] = np.arange(nv)
+    latest = np.maximum.accumulate(np.where(own, tt[None, :], -1), axis=1)
+    var = np.where(latest >= 0, col_at[np.arange(n)[:, None], np.maximum(latest, 0)], -1)
+    ii, ts = np.nonzero(var >= 0)
     r_i, c_i, v_i, lo_b, up_b = [], [], [], [], []
     r = 0
     # Budget rows scaled by their right-hand side (bytes up to 1e12: coefficients <= 1).
@@ -94,24 +105,29 @@ def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
     lo_b.append(np.full(T, -np.inf))
     up_b.append(cap / scale)
     r += T
-    # Arrived stays arrived: z[i,t] - z[i,t+1] <= 0.
-    stay_i, stay_t = np.nonzero(has_var[:, :-1])
+    # Arrived stays arrived: z[i,t] - z[i,t'] <= 0 for consecutive columns t < t' of chunk i.
+    nxt = np.nonzero(ci[1:] == ci[:-1])[0]
+    stay_i, stay_t = ci[nxt], ct[nxt]
     r_stay = r
-    rows = r + np.arange(len(stay_i))
+    rows = r + np.arange(len(nxt))
     r_i += [rows, rows]
-    c_i += [var[stay_i, stay_t], var[stay_i, stay_t + 1]]
+    c_i += [nxt, nxt + 1]
     v_i += [np.ones(len(rows)), -np.ones(len(rows))]
     lo_b.append(np.full(len(rows), -np.inf))
     up_b.append(np.zeros(len(rows)))
     r += len(rows)
-    # Layer order: z[u,t] - z[lo,t-d] <= 0 (no column for z[lo,t-d]: z[u,t] <= 0).
-    has_lo = (data.lower >= 0)[:, None] & has_var
+    # Layer order: z[u,t] - z[lo,t-d] <= 0 (no column for z[lo,t-d]: z[u,t] <= 0), once per pair of columns.
+    has_lo = (data.lower >= 0)[:, None] & (var >= 0)
     ord_i, ord_t = np.nonzero(has_lo)
+    u_col = var[ord_i, ord_t]
+    lo_col = np.where(ord_t - d >= 0, var[data.lower[ord_i], np.maximum(ord_t - d, 0)], -1)
+    _, keep = np.unique(np.stack([u_col, lo_col]), axis=1, return_index=True)
+    keep.sort()
+    ord_i, ord_t, u_col, lo_col = ord_i[keep], ord_t[keep], u_col[keep], lo_col[keep]
     r_order = r
     rows = r + np.arange(len(ord_i))
-    lo_col = np.where(ord_t - d >= 0, var[data.lower[ord_i], np.maximum(ord_t - d, 0)], -1)
     r_i.append(rows)
-    c_i.append(var[ord_i, ord_t])
+    c_i.append(u_col)
     v_i.append(np.ones(len(rows)))
     ok = lo_col >= 0
     r_i.append(rows[ok])
@@ -121,7 +137,12 @@ def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool):
     up_b.append(np.zeros(len(rows)))
     r += len(rows)
     A = sparse.csc_matrix((np.concatenate(v_i), (np.concatenate(r_i), np.concatenate(c_i))), shape=(r, nv))
-    lp = sparse_lp(A, col_cost=-data.shown[ii, ts], col_lower=np.where(ts >= by[ii], 1.0, 0.0),
+    value = np.zeros(nv)
+    np.add.at(value, var[ii, ts], data.shown[ii, ts])
+    forced = np.zeros(nv)
+    late = ts >= by[ii]
+    forced[var[ii[late], ts[late]]] = 1.0
+    lp = sparse_lp(A, col_cost=-value, col_lower=forced,
                    col_upper=np.ones(nv), row_lower=np.concatenate(lo_b), row_upper=np.concatenate(up_b),
                    integer=not relax)
     families = {"budget": 0, "stay": r_stay, "order": r_order, "stay_rows": (stay_i, stay_t),
@@ -207,6 +228,7 @@ class _Run(Clock):
         self.z = assignment_value(data, self.assign)
         self.bound, self.bound_kind = (self.z, "no chunk can arrive") if data.n == 0 else (math.inf, "none")
         self.windows = Windows(data.first.copy(), np.full(data.n, data.T, dtype=np.int64), closed=False)
+        self.events = event_slots(data)
         self.lv = None
         self.trace: list[tuple[float, float, float]] = []
         self.hit_limit = False
@@ -317,8 +339,12 @@ class _Run(Clock):
         from l3gs_opt.models.backends.highs import new_highs
         from l3gs_opt.models.backends.highs_race import mip_seeds, race_mip
 
-        data = self.data
-        lp, var, _ = arrived_by_model(data, self.windows, relax=False)
+        data, events = self.data, self.events
+        windows = windows_on_events(self.windows, events)
+        if windows.closed:   # a chunk every better schedule needs has no slot left where it matters
+            return "optimal", None, self.z
+        lp, var, _ = arrived_by_model(data, windows, relax=False, events=events)
+        self.details.setdefault("mip_columns", []).append(int(lp.num_col_))
         restart = [False]
         z_before, best = self.z, [self.z]
         last = [time.perf_counter()]
@@ -360,11 +386,14 @@ class _Run(Clock):
             elif time.perf_counter() - last[0] >= TRACE_EVERY_S:
                 note(event.data_out)
 
-        x0 = data.arrived(self.assign)
+        # The incumbent as a start, its arrivals moved to event slots (same value), if it lies in the windows.
+        x0 = data.arrived(normalize_arrivals(data, self.assign, events))
         start = None
-        if not (x0 & ~cols).any() and (x0[cols] | (np.arange(data.T)[None, :] < self.windows.by[:, None])[cols]).all():
+        if not (x0 & ~cols).any() and (x0 | (np.arange(data.T)[None, :] < windows.by[:, None]))[cols].all():
+            col_value = np.zeros(lp.num_col_)
+            col_value[var[cols]] = x0[cols]
             start = highspy.HighsSolution()
-            start.col_value = x0[cols][np.argsort(var[cols])].astype(np.float64).tolist()
+            start.col_value = col_value.tolist()
             start.value_valid = True
 
         def build(seed: int) -> highspy.Highs:
