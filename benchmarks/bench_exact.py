@@ -365,11 +365,13 @@ def report_cumulative(args: argparse.Namespace) -> None:
               "`start`: the start heuristics (best value, and where the incumbent finally came from); `root`: "
               "the LP, its order as a schedule, the order search, the Lagrangian at its duals and the subgradient "
               "steps; then the "
-              "(chunk, slot) variables of the arrived-by model before and after reduced-cost fixing, and the "
+              "(chunk, slot) variables of the arrived-by model before and after reduced-cost fixing, the "
+              "columns HiGHS was given (one per event slot in each window: a chunk arrives only where it is "
+              "worth something, or where the layer above needs it; each run's model), and the "
               "HiGHS runs on what is left (restart: stopped at a schedule where the fixing, redone, drops a "
               "tenth of the variables).", "",
-              "| instance | start done (s) | root done (s) | variables -> after fixing | HiGHS runs | "
-              "incumbent from | bound kind |", "|---|---|---|---|---|---|---|"]
+              "| instance | start done (s) | root done (s) | variables -> after fixing | HiGHS columns | HiGHS runs | "
+              "incumbent from | bound kind |", "|---|---|---|---|---|---|---|---|"]
     for iid, d in by_inst.items():
         r = d.get("exact")
         if r is None:
@@ -381,7 +383,8 @@ def report_cumulative(args: argparse.Namespace) -> None:
         # Trace points: start, LP and order search, Lagrangian at the LP duals, subgradient, HiGHS.
         root_t = max((p[0] for p in tr[:4]), default=0.0)
         lines.append(f"| {iid} | {tr[0][0]:.1f} | {root_t:.1f} | "
-                     f"{det.get('items', 0) * det.get('slots', 0)} -> {det.get('windows_after_root', '-')} | {mip} | "
+                     f"{det.get('items', 0) * det.get('slots', 0)} -> {det.get('windows_after_root', '-')} | "
+                     f"{', '.join(map(str, det.get('mip_columns', []))) or '-'} | {mip} | "
                      f"{det.get('incumbent_from', '-')} | {det.get('bound_kind', '-')} |")
     lines += _heuristics_table(by_inst, summary)
     lines += _gap_plots(by_inst, out, prefix, ", cumulative budget")
