@@ -281,18 +281,17 @@ def _solve_model(lp) -> float | None:
 @pytest.mark.parametrize("opts", CUMULATIVE, ids=option_id)
 @pytest.mark.parametrize("seed", range(6))
 def test_arrivals_on_event_slots_keep_the_optimum(opts: Options, seed: int) -> None:
-    """The arrived-by MIP with arrivals only in event slots has brute force's optimum (utilities
-    with zeros in a fifth of the (slot, object, layer) entries, so layers of one object differ), and
-    its LP has the full model's value."""
+    """The arrived-by MIP with arrivals only in presolve's event slots has brute force's optimum
+    (utilities with zeros in half the (slot, object, layer) entries, so layers of one object
+    differ), and its LP has the value of the LP with a column in every slot."""
     from l3gs_opt.solvers.exact.cumulative import arrived_by_model
-    from l3gs_opt.solvers.exact.cumulative_data import event_slots
 
     rng = np.random.default_rng(900 + seed)
     inst = random_instance(rng, T=5, J=2, L=3, options=opts, held_p=0.3 if seed % 2 else 0.0, zero_p=0.5, tight=0.4)
     data = link_data(inst)
     ref = solve_brute_force(inst).objective
     full = Windows(data.first.copy(), np.full(data.n, data.T, dtype=np.int64), closed=False)
-    events = event_slots(data)
+    events = data.allowed
     lp, var, _ = arrived_by_model(data, full, relax=False, events=events)
     assert lp.num_col_ == int((events & (np.arange(data.T)[None, :] >= data.first[:, None])).sum())
     assert close(data.constant + _solve_model(lp), ref)
@@ -306,7 +305,7 @@ def test_delaying_arrivals_to_event_slots_keeps_value_and_feasibility(seed: int,
     """Any feasible schedule (random send order, each chunk in the first slot the link allows),
     normalised: still feasible in exact bytes, every arrival in an event slot, the same value
     (summed independently by ``evaluate_objective``)."""
-    from l3gs_opt.solvers.exact.cumulative_data import event_slots, normalize_arrivals
+    from l3gs_opt.solvers.exact.cumulative_data import normalize_arrivals
 
     rng = np.random.default_rng(seed)
     inst = random_instance(rng, T=6, J=3, L=3, options=CUMULATIVE[opt], held_p=0.3 if seed % 2 else 0.0,
@@ -315,11 +314,10 @@ def test_delaying_arrivals_to_event_slots_keeps_value_and_feasibility(seed: int,
     assign = lp_order(data, (rng.random((data.n, 1)) * np.ones((1, data.T)) > 0.3).astype(float)
                       * (np.arange(data.T)[None, :] >= rng.integers(0, data.T, size=(data.n, 1))))
     assert schedule_feasible(data, assign)
-    events = event_slots(data)
-    out = normalize_arrivals(data, assign, events)
+    out = normalize_arrivals(data, assign)
     assert schedule_feasible(data, out) and is_feasible(inst, data.arrivals(out))
     on = out >= 0
-    assert events[np.nonzero(on)[0], out[on]].all()
+    assert data.allowed[np.nonzero(on)[0], out[on]].all()
     assert ((out >= assign) | (out < 0)).all() and ((assign >= 0) | (out < 0)).all()
     a, b = evaluate_objective(inst, data.arrivals(assign)), evaluate_objective(inst, data.arrivals(out))
     assert abs(a - b) <= 1e-9 * max(1.0, abs(a))
@@ -335,3 +333,22 @@ def test_windows_on_events_close_when_a_needed_chunk_has_no_event_slot() -> None
     assert w.closed   # chunk 0 must arrive by slot 2, and slot 3 is its first event slot from 2
     w = windows_on_events(Windows(np.array([0, 0]), np.array([2, 4]), closed=False), events)
     assert not w.closed and w.by.tolist() == [1, 4]
+
+
+@pytest.mark.parametrize("opts", CUMULATIVE, ids=option_id)
+@pytest.mark.parametrize("seed", range(6))
+def test_presolve_event_slots_keep_every_method_at_brute_force(opts: Options, seed: int) -> None:
+    """The standard ILP (HiGHS) and brute force without presolve agree with ``exact``; presolve
+    left out pairs (utilities with zeros in half the entries)."""
+    from l3gs_opt.problem.presolve import presolve
+
+    rng = np.random.default_rng(1200 + seed)
+    inst = random_instance(rng, T=5, J=2, L=3, options=opts, held_p=0.3 if seed % 3 == 0 else 0.0, zero_p=0.5,
+                           tight=0.4)
+    red = presolve(inst)
+    assert red.arrive.sum() < presolve(inst, enabled=False).arrive.sum()
+    ref = solve_brute_force(inst).objective
+    for method in ("ilp", "exact"):
+        sol = solve(inst, method)
+        _check(inst, sol)
+        assert sol.status is Status.OPTIMAL and close(sol.objective, ref), method

@@ -239,12 +239,15 @@ def test_cumulative_zero_bandwidth_slot_kept_for_a_negative_layer():
     opts = Options(budget="cumulative")
     inst = _one_object([[-1.0], [2.0]], bandwidth=(1, 0), options=opts)
     assert presolve(inst).arrive[0, 0].tolist() == [True, True]
-    for method in ("brute", "ilp", "link-dp"):
+    for method in ("brute", "ilp", "link-dp", "exact"):
         sol = solve(inst, method)
         assert sol.objective == 2.0 and sol.arrivals == ((0, 0, 1),), method
-    # With dU >= 0 moving earlier is never worse, and the zero slot takes no arrival (as before).
-    plain = _one_object([[1.0], [2.0]], bandwidth=(1, 0), options=opts)
-    assert presolve(plain).arrive[0, 0].tolist() == [True, False]
+    # A slot where the layer is worth nothing (0) takes no arrival: waiting for the next one is as
+    # good under one link; a negative slot is kept (it is worth something: less).
+    idle = _one_object([[0.0], [-1.0], [2.0]], bandwidth=(1, 0, 0), options=opts)
+    assert presolve(idle).arrive[0, 0].tolist() == [False, True, True]
+    for method in ("brute", "ilp", "exact"):
+        assert solve(idle, method).objective == 2.0, method
 
 
 def test_mckp_options_are_cumulative_levels():

@@ -40,7 +40,7 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
 from .clock import Clock
-from .cumulative_data import (LinkData, LinkMultipliers, Windows, event_slots, fix_windows, link_data, link_lagrangian,
+from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, link_data, link_lagrangian,
                               link_subgradient, normalize_arrivals, schedule_feasible, windows_on_events)
 from .cumulative_order import improve_order
 from .lagrange import assignment_value
@@ -72,12 +72,13 @@ def arrived_by_model(data: LinkData, windows: Windows, *, relax: bool, events: n
     the first row of each family (``"budget"``, ``"stay"``, ``"order"``) plus the (chunk, slot) of
     every linking row.
 
-    With ``events`` (:func:`.cumulative_data.event_slots`) chunk i may arrive only in those slots:
-    one column per event slot in its window, shared by the slots up to its next one (``var`` maps
-    them all), so the stay rows link consecutive event slots and the rows' (chunk, slot) are those
-    of the first column. A fifth of the columns on the bench instances, the same optimum and the
-    same LP value (fractional arrivals may be delayed too); the LP's duals are then not those of the
-    full model's rows, so the root LP is solved without ``events``."""
+    With ``events`` [n, T] (``data.allowed``: presolve's event slots, where holding the chunk is
+    worth something or the layer above needs it) chunk i may arrive only in those slots: one column
+    per event slot in its window, shared by the slots up to its next one (``var`` maps them all), so
+    the stay rows link consecutive event slots and the rows' (chunk, slot) are those of the first
+    column. A fifth of the columns on the bench instances, the same optimum and LP value. Without
+    ``events`` every slot of the window has its column: the root LP is solved so, because its duals
+    become the Lagrangian's multipliers, one per slot."""
     from scipy import sparse
 
     from l3gs_opt.models.backends.highs import sparse_lp
@@ -228,7 +229,6 @@ class _Run(Clock):
         self.z = assignment_value(data, self.assign)
         self.bound, self.bound_kind = (self.z, "no chunk can arrive") if data.n == 0 else (math.inf, "none")
         self.windows = Windows(data.first.copy(), np.full(data.n, data.T, dtype=np.int64), closed=False)
-        self.events = event_slots(data)
         self.lv = None
         self.trace: list[tuple[float, float, float]] = []
         self.hit_limit = False
@@ -339,11 +339,11 @@ class _Run(Clock):
         from l3gs_opt.models.backends.highs import new_highs
         from l3gs_opt.models.backends.highs_race import mip_seeds, race_mip
 
-        data, events = self.data, self.events
-        windows = windows_on_events(self.windows, events)
+        data = self.data
+        windows = windows_on_events(self.windows, data.allowed)
         if windows.closed:   # a chunk every better schedule needs has no slot left where it matters
             return "optimal", None, self.z
-        lp, var, _ = arrived_by_model(data, windows, relax=False, events=events)
+        lp, var, _ = arrived_by_model(data, windows, relax=False, events=data.allowed)
         self.details.setdefault("mip_columns", []).append(int(lp.num_col_))
         restart = [False]
         z_before, best = self.z, [self.z]
@@ -387,7 +387,7 @@ class _Run(Clock):
                 note(event.data_out)
 
         # The incumbent as a start, its arrivals moved to event slots (same value), if it lies in the windows.
-        x0 = data.arrived(normalize_arrivals(data, self.assign, events))
+        x0 = data.arrived(normalize_arrivals(data, self.assign))
         start = None
         if not (x0 & ~cols).any() and (x0 | (np.arange(data.T)[None, :] < windows.by[:, None]))[cols].all():
             col_value = np.zeros(lp.num_col_)

@@ -41,7 +41,7 @@ from l3gs_opt.problem.instance import Instance
 from .lagrange import ChunkItems, PolyakStep, chunk_arrays, knapsack
 
 __all__ = ["LinkData", "link_data", "schedule_feasible", "LinkMultipliers", "LinkLagrange",
-           "link_lagrangian", "link_subgradient", "fix_windows", "Windows", "event_slots", "normalize_arrivals",
+           "link_lagrangian", "link_subgradient", "fix_windows", "Windows", "normalize_arrivals",
            "windows_on_events"]
 
 _EPS = np.finfo(np.float64).eps
@@ -64,6 +64,9 @@ class LinkData(ChunkItems):
         slot; :func:`.lagrange.assignment_value` sums it for a schedule).
     first : int64 array [n]
         Earliest slot chunk i may arrive in (T: never).
+    allowed : bool array [n, T]
+        The slots chunk i may arrive in (presolve's event slots: where having it is worth
+        something, or where the layer above needs it).
     lower, upper : int arrays [n]
         The chunk of the layer below / above (-1: none, or the layer below is held).
     strict : bool
@@ -81,6 +84,7 @@ class LinkData(ChunkItems):
     shown: np.ndarray
     profit: np.ndarray
     first: np.ndarray
+    allowed: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
     strict: bool
@@ -106,7 +110,7 @@ def link_data(instance: Instance) -> LinkData:
     T = instance.T
     first = np.where(allowed.any(axis=1), np.argmax(allowed, axis=1), T).astype(np.int64)
     return LinkData(T=T, item_j=jj, item_l=ll, cost=instance.cost[jj, ll].astype(np.int64), shown=shown,
-                    profit=future, first=first, lower=lower, upper=upper,
+                    profit=future, first=first, allowed=allowed, lower=lower, upper=upper,
                     strict=not instance.options.same_slot_layers,
                     capacity=np.cumsum(instance.bandwidth.astype(np.int64)), constant=red.constant,
                     stats=dict(red.stats))
@@ -129,36 +133,17 @@ def schedule_feasible(data: LinkData, assign: np.ndarray, first: np.ndarray | No
 
 # -- arrivals only where they can matter ---------------------------------------------------------
 
-def event_slots(data: LinkData) -> np.ndarray:
-    """``E`` [n, T] (bool): the slots in which chunk i needs to be able to arrive.
-
-    Under one sequential link an arrival may always be delayed across slots in which it is worth
-    nothing: over ``s[i, t..t'-1] = 0`` the value is the same, every budget row in between holds one
-    chunk fewer, and later budget rows hold the same chunks. So every schedule has one as good whose
-    arrivals lie in ``E``: the slots with ``s[i,t] != 0``, plus those a layer above needs its layer
-    below by (``E[up] - d``, so the delayed layer below still precedes it). The same holds for the LP's
-    fractional arrivals. It does not hold for per-slot budgets: the later slot may be full. On the
-    bench's T=60 instances ``E`` holds about a fifth of the (chunk, slot) pairs (an object out of view
-    is worth nothing)."""
-    T, d = data.T, data.d
-    events = data.shown != 0
-    for i in np.argsort(-data.item_l, kind="stable"):   # layers above first: E[up] is complete
-        lo = int(data.lower[i])
-        if lo >= 0:
-            events[lo, :T - d] |= events[i, d:]
-    return events
-
-
-def normalize_arrivals(data: LinkData, assign: np.ndarray, events: np.ndarray) -> np.ndarray:
-    """``assign`` with every arrival delayed to the chunk's next slot in ``events`` (never, when there
-    is none): the same value, still feasible (see :func:`event_slots`)."""
+def normalize_arrivals(data: LinkData, assign: np.ndarray) -> np.ndarray:
+    """``assign`` (any feasible schedule, e.g. a heuristic's) with every arrival delayed to the
+    chunk's next slot presolve allows (never, when there is none): the same value, still feasible
+    (presolve's event slots: :func:`l3gs_opt.problem.presolve.event_slots`)."""
     out = assign.copy()
-    T = data.T
+    T, allowed = data.T, data.allowed
     for i in np.argsort(-data.item_l, kind="stable"):   # a layer above moves before the one below it
         t = int(out[i])
-        if t < 0 or events[i, t]:
+        if t < 0 or allowed[i, t]:
             continue
-        later = np.nonzero(events[i, t:])[0]
+        later = np.nonzero(allowed[i, t:])[0]
         out[i] = t + int(later[0]) if len(later) else -1
         if out[i] >= T:
             out[i] = -1
@@ -166,8 +151,9 @@ def normalize_arrivals(data: LinkData, assign: np.ndarray, events: np.ndarray) -
 
 
 def windows_on_events(windows: "Windows", events: np.ndarray) -> "Windows":
-    """``windows`` narrowed to the event slots: ``first`` up to the next one, ``by`` down to the
-    last one (closed when a chunk that must arrive has none in between)."""
+    """``windows`` narrowed to the slots ``events`` [n, T] allows (presolve's event slots): ``first``
+    up to the next one, ``by`` down to the last one (closed when a chunk that must arrive has none
+    in between)."""
     n, T = events.shape
     tt = np.arange(T)
     in_window = events & (tt[None, :] >= windows.first[:, None])
