@@ -536,3 +536,20 @@ def test_shape_errors_name_the_grid_index():
     bad[0, 1, 2] = -1.0
     with pytest.raises(ItemInstanceError, match=r"^utility\[0\]\[1\]\[2\] = -1\.0: must be finite and >= 0"):
         hierarchy_items(np.ones((2, 3), int), bad, [4])
+
+
+@pytest.mark.parametrize("options", [o for o in ALL_OPTIONS if o.budget == "cumulative"], ids=option_id)
+@pytest.mark.parametrize("shape", SHAPES)
+def test_cumulative_event_slots_keep_the_optimum(shape, options):
+    """Under one link presolve keeps only the slots where an item adds something (or an item
+    requiring it needs it by): fewer pairs, brute force's optimum, on three slots with zeros."""
+    rng = np.random.default_rng(zlib.crc32(f"events-{shape}-{option_id(options)}".encode()))
+    dropped = 0
+    for trial in range(4):
+        inst = random_items(rng, shape, T=3, options=options, held_p=0.35 if trial % 2 else 0.0)
+        dropped += int(presolve_items(inst, enabled=False).arrive.sum() - presolve_items(inst).arrive.sum())
+        ref = solve_items_brute_force(inst)
+        sol = solve(inst, "ilp")
+        assert sol.status is Status.OPTIMAL and close(sol.objective, ref.objective), inst.to_dict()
+        assert items_feasible(inst, sol.arrivals)
+    assert dropped > 0

@@ -6,11 +6,13 @@ The rules of :mod:`l3gs_opt.problem.presolve`, stated on the general form:
 * an item can arrive in slot t only if it fits: per-slot budget ``cost <= bandwidth[t]``,
   cumulative budget ``cost <= sum_{t' <= t} bandwidth[t']``; so under per-slot budgets a slot
   with zero bandwidth takes no arrivals;
-* cumulative budget with same-slot precedence: a slot t > 0 with zero bandwidth takes no
-  arrivals (moving all of them to slot t-1 keeps every cumulative budget, every precedence and
-  shows them no later, which is never worse since utilities are >= 0 and a group's max is
-  monotone in what it holds); with strict precedence that move could break an edge, so there
-  the slot is kept;
+* cumulative budget: an item arrives only in its *event slots*: those where it adds something
+  over its group's held items (``gain > 0`` at the slot it would be shown from) and those an item
+  requiring it needs it by (that item's event slots, one earlier under strict precedence). Under
+  one link an arrival may wait across slots where the item adds nothing: the group's max is the
+  same there (the held items are at least as good), each budget row in between holds one item
+  fewer, and the slot it waits for still fits it (as :mod:`l3gs_opt.problem.presolve` does for
+  layers; it replaces the rule that moved zero-bandwidth arrivals one slot earlier);
 * an item cannot arrive before the earliest slot each unheld parent can (strictly after it
   under strict precedence): an item below one that never fits drags its descendants with it;
 * an item is dropped when it adds nothing over its group's held items (``gain = 0``) in every
@@ -61,6 +63,20 @@ class ItemReduction:
     stats: dict
 
 
+def _event_slots(inst: ItemInstance, gain: np.ndarray) -> np.ndarray:
+    """[N, T] (bool): under the cumulative budget, the slots item i needs to be able to arrive in
+    (module doc); ``gain`` [T, N]."""
+    T = inst.T
+    shift = 1 if inst.options.availability == "next_slot" else 0
+    d = 0 if inst.options.same_slot_layers else 1
+    events = np.zeros((inst.N, T), dtype=bool)
+    events[:, :T - shift] = gain[shift:, :].T > 0
+    for i in inst.order.tolist()[::-1]:   # children first: an item's own set is complete
+        for p in inst.parents[i]:
+            events[p, :T - d] |= events[i, d:]
+    return events
+
+
 def presolve_items(instance: ItemInstance, *, enabled: bool = True) -> ItemReduction:
     """Reduce an item instance; ``enabled=False`` keeps every item and slot (the naive model)."""
     inst = instance
@@ -75,11 +91,7 @@ def presolve_items(instance: ItemInstance, *, enabled: bool = True) -> ItemReduc
     if inst.options.budget == "per_slot":
         fits = inst.cost[:, None] <= bandwidth[None, :]
     else:
-        fits = inst.cost[:, None] <= np.cumsum(bandwidth)[None, :]
-        if not strict:
-            zero = bandwidth == 0
-            zero[0] = False  # slot 0 with zero bandwidth admits nothing anyway (cumulative 0)
-            fits &= ~zero[None, :]
+        fits = (inst.cost[:, None] <= np.cumsum(bandwidth)[None, :]) & _event_slots(inst, gain)
     fits &= ~inst.held[:, None]
     slots = np.arange(T)
     first = np.full(N, T, dtype=np.int64)
