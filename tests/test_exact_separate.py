@@ -233,3 +233,25 @@ def test_refuses_more_versions_than_the_path_dp_takes() -> None:
                     utility=np.tile(np.arange(1, L + 1, dtype=float), (2, 1, 1)))
     with pytest.raises(SolveError, match=f"object 0 has {L} versions"):
         solve(inst, "exact")
+
+
+@pytest.mark.parametrize("options", ALL_OPTIONS, ids=lambda o: f"{o.availability}-{o.budget}")
+@pytest.mark.parametrize("seed", range(4))
+def test_heuristic_starts_are_mapped_inside_presolve_slots_at_the_same_value(options: Options, seed: int) -> None:
+    """``static`` sends every version that fits, also where it adds nothing: its paths lie in
+    presolve's slots (per slot: such arrivals dropped; one link: they wait for an event slot), are
+    feasible in exact bytes and worth what the schedule is worth (summed independently)."""
+    from l3gs_opt.solvers.exact.separate_data import schedule_feasible
+
+    rng = np.random.default_rng(700 + seed)
+    inst = _instance(rng, T=6, J=3, L=3, options=options, tight=0.5)
+    utility = np.array(inst.utility)
+    utility[4:] = 0.0                                  # nobody looks after slot 3
+    inst = Instance("separate", bandwidth=inst.bandwidth, cost=inst.cost, utility=utility, held=inst.held,
+                    options=options)
+    data = separate_data(inst)
+    start = solve(inst, "static")
+    paths = data.paths_of(start.arrivals)
+    assert schedule_feasible(data, paths)
+    value = data.constant + math.fsum(path_value(data, k, p) for k, p in paths.items())
+    assert _close(value, start.objective) or abs(value - start.objective) <= 1e-12

@@ -80,9 +80,11 @@ def test_repair_finds_a_repacking_local_search_cannot() -> None:
     them out first: no single move or exchange does it, the repair does."""
     from l3gs_opt import Instance
 
-    # Objects: a (3 bytes, shown in slot 0 only), b and c (2 bytes each, shown in slot 1 only).
+    # Objects: a (3 bytes, worth 10 in slot 0 and 1 in slot 1), b and c (2 bytes each, shown in
+    # slot 1 only). (a worth nothing in slot 1 would not be allowed there: presolve.)
     utility = np.zeros((2, 3, 1))
     utility[0, 0, 0] = 10.0
+    utility[1, 0, 0] = 1.0
     utility[1, 1, 0] = utility[1, 2, 0] = 1.0
     inst = Instance("layered", bandwidth=np.array([4, 4]), cost=np.array([[3], [2], [2]]), utility=utility)
     data = gap_data(inst)

@@ -334,3 +334,40 @@ def test_a_zero_optimum_of_nonzero_terms_is_proven():
         assert sol.status is Status.OPTIMAL and sol.objective == pytest.approx(0.0, abs=1e-12), (method, kw, sol.status)
     nonneg = Instance("layered", bandwidth=[10], cost=[[1]], utility=[[[1.0]]])
     assert utility_scale(nonneg) is None                  # non-negative instances: gaps unchanged
+
+
+def test_per_slot_presolve_stops_at_the_last_event_slot():
+    # Layer 0 is worth something in slots 0-1, layer 1 in slot 2: layer 0 may still arrive in slot
+    # 2 (a step to layer 1 there), neither in slot 3. A negative utility is worth something too.
+    inst = _one_object([[1.0, 0.0], [1.0, 0.0], [0.0, 2.0], [0.0, 0.0]], bandwidth=(1, 1, 1, 1))
+    assert presolve(inst).arrive[0].tolist() == [[True, True, True, False]] * 2
+    signed = _one_object([[1.0, 0.0], [1.0, 0.0], [0.0, 2.0], [0.0, -1.0]], bandwidth=(1, 1, 1, 1))
+    assert presolve(signed).arrive[0].tolist() == [[True] * 4] * 2
+    for case in (inst, signed):
+        ref = solve(case, "brute").objective
+        for method in ("ilp", "exact"):
+            assert solve(case, method).objective == ref, method
+
+
+def test_exact_starts_from_a_heuristic_that_sends_worthless_chunks():
+    """``static`` sends every chunk that fits, also after its object left the view for good: per
+    slot those arrivals are dropped (worth nothing), under one link they wait for an event slot;
+    either way the start keeps its value and ``exact`` reaches brute force's optimum."""
+    from l3gs_opt.solvers.exact.lagrange import assignment_value, gap_data
+    from l3gs_opt.solvers.exact.search import solve_exact
+
+    rng = np.random.default_rng(3)
+    utility = rng.random((5, 2, 2))
+    utility[2:] = 0.0                      # nobody looks after slot 1
+    utility[0, 1] = 0.0                    # object 1 out of view in slot 0
+    for budget in ("per_slot", "cumulative"):
+        inst = Instance("layered", bandwidth=[1, 1, 1, 1, 1], cost=[[1, 1], [1, 1]], utility=utility,
+                        options=Options(budget=budget))
+        start = solve(inst, "static")
+        if budget == "per_slot":
+            data = gap_data(inst)
+            assign = data.assignment(start.arrivals)
+            assert (assign >= 0).sum() < len(start.arrivals)      # something was worth nothing
+            assert abs(assignment_value(data, assign) - start.objective) <= 1e-12
+        sol = solve_exact(inst, heuristics=("static",))
+        assert abs(sol.objective - solve(inst, "brute").objective) <= 1e-12, budget

@@ -6,6 +6,9 @@ The rules of :mod:`l3gs_opt.problem.presolve`, stated on the general form:
 * an item can arrive in slot t only if it fits: per-slot budget ``cost <= bandwidth[t]``,
   cumulative budget ``cost <= sum_{t' <= t} bandwidth[t']``; so under per-slot budgets a slot
   with zero bandwidth takes no arrivals;
+* per-slot budget: an item arrives no later than its last event slot (below): after it neither
+  it nor any item requiring it (those arrive no earlier) adds anything, so leaving them out loses
+  nothing;
 * cumulative budget: an item arrives only in its *event slots*: those where it adds something
   over its group's held items (``gain > 0`` at the slot it would be shown from) and those an item
   requiring it needs it by (that item's event slots, one earlier under strict precedence). Under
@@ -30,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from l3gs_opt.problem.items import ItemInstance, item_gain
+from l3gs_opt.problem.presolve import up_to_last
 
 __all__ = ["ItemReduction", "presolve_items"]
 
@@ -91,7 +95,7 @@ def presolve_items(instance: ItemInstance, *, enabled: bool = True) -> ItemReduc
     if inst.options.budget == "per_slot":
         fits = inst.cost[:, None] <= bandwidth[None, :]
     else:
-        fits = (inst.cost[:, None] <= np.cumsum(bandwidth)[None, :]) & _event_slots(inst, gain)
+        fits = inst.cost[:, None] <= np.cumsum(bandwidth)[None, :]
     fits &= ~inst.held[:, None]
     slots = np.arange(T)
     first = np.full(N, T, dtype=np.int64)
@@ -109,7 +113,10 @@ def presolve_items(instance: ItemInstance, *, enabled: bool = True) -> ItemReduc
             useful[i] = True
     never_fit = (first >= T) & ~inst.held
     active = useful & ~never_fit & ~inst.held
-    arrive = fits & active[:, None]
+    # Event slots last, so that the counts keep their meaning (as in the layered presolve).
+    events = _event_slots(inst, gain)
+    arrive = fits & active[:, None] & (up_to_last(events) if inst.options.budget == "per_slot" else events)
+    first = np.where(arrive.any(axis=1), arrive.argmax(axis=1), T)
     stats = {
         "presolve": True,
         "held": int(inst.held.sum()),

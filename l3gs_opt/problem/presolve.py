@@ -19,6 +19,10 @@ slot, and from which slot a chunk can first be held. Rules, each safe for the ex
   out (it only frees bytes), so some optimum never holds layer l. A layer with ``dU < 0`` under
   a layer that recovers more is kept: it is a step to a better level. With ``dU >= 0`` this is
   the plain rule "no layer from l up adds anything";
+* per-slot budget: a chunk arrives no later than its last *event slot* (below): after it the chunk
+  is worth nothing for the rest of the horizon, and neither is any layer above it (those arrive no
+  earlier), so leaving them all out loses nothing and only frees bytes. 5-21 % of the pairs on the
+  bench's T=60 instances (an object that leaves the view for good);
 * cumulative budget: a chunk arrives only in its *event slots*, those in which having it is worth
   something (``gain != 0`` at the slot it would be shown from: t, or t+1 under next-slot
   availability) and, layered, those the layer above needs it by (its event slots, one earlier with
@@ -48,7 +52,7 @@ import numpy as np
 
 from l3gs_opt.problem.instance import Instance
 
-__all__ = ["Reduction", "presolve", "shown_value", "event_slots", "MckpOptions", "mckp_options"]
+__all__ = ["Reduction", "presolve", "shown_value", "event_slots", "up_to_last", "MckpOptions", "mckp_options"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,8 +115,7 @@ def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
     if inst.options.budget == "per_slot":
         fits = inst.cost[:, :, None] <= bandwidth[None, None, :]
     else:
-        cum = np.cumsum(bandwidth)
-        fits = (inst.cost[:, :, None] <= cum[None, None, :]) & event_slots(inst, gain)
+        fits = inst.cost[:, :, None] <= np.cumsum(bandwidth)[None, None, :]
     fits &= ~inst.held[:, :, None]
     slots = np.arange(T)
     first = np.full((J, L), T, dtype=np.int64)
@@ -138,7 +141,11 @@ def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
         mask = slots[:, None, None] >= (first + shift)[None]
         useful = np.where(mask, gain, 0.0).sum(axis=0) > 0  # [J, L]
     active = useful & ~never_fit & ~inst.held
-    arrive = fits & active[:, :, None]
+    # Event slots last, so that the counts above keep their meaning (a chunk worth nothing anywhere
+    # is "no utility", not "never fits"); a useful chunk keeps its first slot worth something.
+    events = event_slots(inst, gain)
+    arrive = fits & active[:, :, None] & (up_to_last(events) if inst.options.budget == "per_slot" else events)
+    first = np.where(arrive.any(axis=2), arrive.argmax(axis=2), T)
     stats = {
         "presolve": True,
         "held": int(inst.held.sum()),
@@ -166,6 +173,13 @@ def event_slots(instance: Instance, gain: np.ndarray) -> np.ndarray:
         for l in range(inst.L - 2, -1, -1):   # from the top: the layer above is complete
             events[:, l, :T - d] |= events[:, l + 1, d:]
     return events
+
+
+def up_to_last(events: np.ndarray) -> np.ndarray:
+    """[..., T] (bool): the slots up to the last event slot (none when there is none)."""
+    T = events.shape[-1]
+    last = np.where(events.any(axis=-1), T - 1 - np.argmax(events[..., ::-1], axis=-1), -1)
+    return np.arange(T) <= last[..., None]
 
 
 def _layers_worth_keeping(inst: Instance, gain: np.ndarray, fits: np.ndarray, never_fit: np.ndarray) -> np.ndarray:

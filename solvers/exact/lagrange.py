@@ -116,6 +116,18 @@ class GapData(ChunkItems):
     constant: float
     stats: dict = field(default_factory=dict)
 
+    def assignment(self, arrivals) -> np.ndarray:
+        """The assignment of a schedule (chunks presolve dropped are ignored), without the arrivals
+        presolve leaves out: after the chunk's last event slot it is worth nothing for the rest of
+        the horizon, and so is every layer above it (they arrive no earlier), so dropping them with
+        those layers keeps the value and only frees bytes (a heuristic may send such a chunk)."""
+        out = ChunkItems.assignment(self, arrivals)
+        for i in np.argsort(self.item_l, kind="stable"):   # layers below first
+            t = int(out[i])
+            if t >= 0 and (not self.allowed[i, t] or (self.lower[i] >= 0 and out[self.lower[i]] < 0)):
+                out[i] = -1
+        return out
+
 
 def check_supported(instance: Instance, method: str = "exact") -> None:
     """Raise :class:`SolveError` for what the per-slot decomposition cannot express."""

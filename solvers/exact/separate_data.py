@@ -126,14 +126,20 @@ class SeparateData:
 
     def paths_of(self, arrivals) -> dict[int, Path]:
         """One path per object of a schedule; versions presolve dropped are left out (they add
-        nothing wherever they could be shown, so leaving them out only frees bytes)."""
+        nothing wherever they could be shown, so leaving them out only frees bytes), and so is an
+        arrival after the version's last event slot; under the cumulative budget an arrival in a
+        slot presolve leaves out waits for the version's next event slot (the same value, a looser
+        budget: :mod:`l3gs_opt.problem.presolve`)."""
         index = {(int(self.objects[k]), int(self.versions[k, b])): (k, b)
                  for k in range(self.K) for b in range(self.V) if self.versions[k, b] >= 0}
         slots = np.full((self.K, self.V), -1, dtype=np.int64)
         for j, l, t in arrivals:
             hit = index.get((int(j), int(l)))
             if hit is not None:
-                slots[hit] = int(t)
+                k, b = hit
+                ok = np.nonzero((self.allowed[k, int(t):] >> b) & 1)[0]
+                if len(ok) and (ok[0] == 0 or self.cumulative):
+                    slots[hit] = int(t) + int(ok[0])
         return {k: tuple(int(s) for s in slots[k]) for k in range(self.K) if (slots[k] >= 0).any()}
 
 
