@@ -159,10 +159,10 @@ def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
 
 
 def event_slots(instance: Instance, gain: np.ndarray) -> np.ndarray:
-    """[J, L, T] (bool): the slots a chunk needs to be able to arrive in under the cumulative
-    budget (module doc): ``gain`` [T, J, L] (of :func:`shown_value`) is not 0 at the slot the
-    chunk would be shown from, or, layered, the layer above has an event slot there (one slot
-    later with strict layers)."""
+    """[J, L, T] (bool): a chunk's event slots (module doc; under the cumulative budget its only
+    arrival slots, under per-slot budgets the last one ends them): ``gain`` [T, J, L] (of
+    :func:`shown_value`) is not 0 at the slot the chunk would be shown from, or, layered, the layer
+    above has an event slot there (one slot later with strict layers)."""
     inst = instance
     T = inst.T
     shift = 1 if inst.options.availability == "next_slot" else 0
