@@ -305,7 +305,7 @@ def test_delaying_arrivals_to_event_slots_keeps_value_and_feasibility(seed: int,
     """Any feasible schedule (random send order, each chunk in the first slot the link allows),
     normalised: still feasible in exact bytes, every arrival in an event slot, the same value
     (summed independently by ``evaluate_objective``)."""
-    from l3gs_opt.solvers.exact.cumulative_data import normalize_arrivals
+    from l3gs_opt.solvers.exact.lagrange import into_presolve_slots
 
     rng = np.random.default_rng(seed)
     inst = random_instance(rng, T=6, J=3, L=3, options=CUMULATIVE[opt], held_p=0.3 if seed % 2 else 0.0,
@@ -314,7 +314,7 @@ def test_delaying_arrivals_to_event_slots_keeps_value_and_feasibility(seed: int,
     assign = lp_order(data, (rng.random((data.n, 1)) * np.ones((1, data.T)) > 0.3).astype(float)
                       * (np.arange(data.T)[None, :] >= rng.integers(0, data.T, size=(data.n, 1))))
     assert schedule_feasible(data, assign)
-    out = normalize_arrivals(data, assign)
+    out = into_presolve_slots(data, assign, wait=True)
     assert schedule_feasible(data, out) and is_feasible(inst, data.arrivals(out))
     on = out >= 0
     assert data.allowed[np.nonzero(on)[0], out[on]].all()

@@ -41,9 +41,9 @@ from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
 
 from .clock import Clock
 from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, link_data, link_lagrangian,
-                              link_subgradient, normalize_arrivals, schedule_feasible, windows_on_events)
+                              link_subgradient, schedule_feasible, windows_on_events)
 from .cumulative_order import improve_order
-from .lagrange import assignment_value
+from .lagrange import assignment_value, into_presolve_slots
 from .lns import MIP_BOUND_SLACK
 from .starts import check_starts, run_start
 
@@ -387,7 +387,7 @@ class _Run(Clock):
                 note(event.data_out)
 
         # The incumbent as a start, its arrivals moved to event slots (same value), if it lies in the windows.
-        x0 = data.arrived(normalize_arrivals(data, self.assign))
+        x0 = data.arrived(into_presolve_slots(data, self.assign, wait=True))
         start = None
         if not (x0 & ~cols).any() and (x0 | (np.arange(data.T)[None, :] < windows.by[:, None]))[cols].all():
             col_value = np.zeros(lp.num_col_)

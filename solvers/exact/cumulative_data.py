@@ -41,8 +41,7 @@ from l3gs_opt.problem.instance import Instance
 from .lagrange import ChunkItems, PolyakStep, chunk_arrays, knapsack
 
 __all__ = ["LinkData", "link_data", "schedule_feasible", "LinkMultipliers", "LinkLagrange",
-           "link_lagrangian", "link_subgradient", "fix_windows", "Windows", "normalize_arrivals",
-           "windows_on_events"]
+           "link_lagrangian", "link_subgradient", "fix_windows", "Windows", "windows_on_events"]
 
 _EPS = np.finfo(np.float64).eps
 
@@ -132,23 +131,6 @@ def schedule_feasible(data: LinkData, assign: np.ndarray, first: np.ndarray | No
 
 
 # -- arrivals only where they can matter ---------------------------------------------------------
-
-def normalize_arrivals(data: LinkData, assign: np.ndarray) -> np.ndarray:
-    """``assign`` (any feasible schedule, e.g. a heuristic's) with every arrival delayed to the
-    chunk's next slot presolve allows (never, when there is none): the same value, still feasible
-    (presolve's event slots: :func:`l3gs_opt.problem.presolve.event_slots`)."""
-    out = assign.copy()
-    T, allowed = data.T, data.allowed
-    for i in np.argsort(-data.item_l, kind="stable"):   # a layer above moves before the one below it
-        t = int(out[i])
-        if t < 0 or allowed[i, t]:
-            continue
-        later = np.nonzero(allowed[i, t:])[0]
-        out[i] = t + int(later[0]) if len(later) else -1
-        if out[i] >= T:
-            out[i] = -1
-    return out
-
 
 def windows_on_events(windows: "Windows", events: np.ndarray) -> "Windows":
     """``windows`` narrowed to the slots ``events`` [n, T] allows (presolve's event slots): ``first``

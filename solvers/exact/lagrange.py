@@ -45,7 +45,7 @@ from . import pricing
 
 __all__ = ["ChunkItems", "GapData", "gap_data", "chunk_arrays", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
            "lagrangian_value", "PolyakStep", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
-           "chunk_profits"]
+           "chunk_profits", "into_presolve_slots"]
 
 _EPS = np.finfo(np.float64).eps
 
@@ -76,6 +76,23 @@ class ChunkItems:
             if i is not None:
                 out[i] = int(t)
         return out
+
+
+def into_presolve_slots(data, assign: np.ndarray, *, wait: bool) -> np.ndarray:
+    """A feasible schedule ``assign`` moved inside ``data.allowed`` [n, T] (presolve's slots) at the
+    same value: an arrival outside them waits for the chunk's next allowed slot (``wait``: the
+    cumulative budget, where a chunk only arrives in its event slots and waiting loosens every row
+    in between) or is dropped (per-slot budgets, where the slots left out are those after the
+    chunk's last event slot: it is worth nothing there). Layers above go first; presolve's closure
+    (a layer's event slots include those the layer above needs it by) keeps the layer order."""
+    out = assign.copy()
+    for i in np.argsort(-data.item_l, kind="stable"):
+        t = int(out[i])
+        if t < 0 or data.allowed[i, t]:
+            continue
+        later = np.nonzero(data.allowed[i, t:])[0] if wait else ()
+        out[i] = t + int(later[0]) if len(later) else -1
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,16 +134,9 @@ class GapData(ChunkItems):
     stats: dict = field(default_factory=dict)
 
     def assignment(self, arrivals) -> np.ndarray:
-        """The assignment of a schedule (chunks presolve dropped are ignored), without the arrivals
-        presolve leaves out: after the chunk's last event slot it is worth nothing for the rest of
-        the horizon, and so is every layer above it (they arrive no earlier), so dropping them with
-        those layers keeps the value and only frees bytes (a heuristic may send such a chunk)."""
-        out = ChunkItems.assignment(self, arrivals)
-        for i in np.argsort(self.item_l, kind="stable"):   # layers below first
-            t = int(out[i])
-            if t >= 0 and (not self.allowed[i, t] or (self.lower[i] >= 0 and out[self.lower[i]] < 0)):
-                out[i] = -1
-        return out
+        """The assignment of a schedule (chunks presolve dropped are ignored), inside presolve's
+        slots (:func:`into_presolve_slots`: a heuristic may send a chunk where it is worth nothing)."""
+        return into_presolve_slots(self, ChunkItems.assignment(self, arrivals), wait=False)
 
 
 def check_supported(instance: Instance, method: str = "exact") -> None:
