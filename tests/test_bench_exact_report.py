@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-_SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_exact.py"
+from script_helpers import load_script
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_exact_under_test", _SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_exact")
 
 
 def _rec(seed: int, label: str, status: str, gap: float, seconds: float, objective: float = 100.0) -> dict:
