@@ -222,7 +222,7 @@ PLY_NAMES = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", 
        body=st.one_of(st.binary(max_size=300),
                       st.lists(NUMBER_TEXT, max_size=60).map(lambda v: (" ".join(v) + "\n").encode())))
 def test_fuzz_ply_reader_generated(folder, fmt, count, props, body):
-    header = [f"ply", f"format {fmt} 1.0", f"element vertex {count}"]
+    header = ["ply", f"format {fmt} 1.0", f"element vertex {count}"]
     header += [f"property list uchar {t} {n}" if is_list else f"property {t} {n}" for t, n, is_list in props]
     path = folder / "g.ply"
     path.write_bytes(("\n".join(header) + "\nend_header\n").encode() + body)

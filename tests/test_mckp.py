@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 import l3gs_opt
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.evaluate import is_feasible
-from l3gs_opt.problem.instance import Instance, Options
+from l3gs_opt.problem.instance import Instance
 from l3gs_opt.models import build_model, solve_ilp, solve_model
 from l3gs_opt.problem.presolve import mckp_options
 from l3gs_opt.problem.solution import Status

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from l3gs_opt.scene.bundle import BundleError, read_bundle, write_bundle
-from l3gs_opt.scene.cameras import (MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, Camera, CameraError, load_any_cameras, load_cameras,
+from l3gs_opt.scene.cameras import (MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, CameraError, load_any_cameras, load_cameras,
                               read_colmap, save_cameras, write_colmap)
 from l3gs_opt.cli.main import main
 from l3gs_opt.simulator.link import Link, LinkError

@@ -35,9 +35,8 @@ def improve_window(data: GapData, assign: np.ndarray, allowed: np.ndarray, start
     when the MIP finds nothing better (or fails)."""
     import highspy
 
-    T, n = data.T, data.n
+    n = data.n
     d = 1 if data.strict else 0
-    W = np.arange(start, end)
     in_w = (assign >= start) & (assign < end)
     later = (assign >= end) | (assign < 0)
     out_val = np.where(later, chunk_profits(data, assign), 0.0)

@@ -233,7 +233,7 @@ def round_schedule(data: GapData, score: np.ndarray, allowed: np.ndarray, *,
                    forced: Mapping[int, int] | None = None) -> np.ndarray:
     """Greedy schedule from per-(item, slot) scores (e.g. the master solution): take the pairs
     in descending score (ties: more profit first) when they fit and keep layer order."""
-    n, T = data.n, data.T
+    n = data.n
     d = 1 if data.strict else 0
     assign = np.full(n, -1, dtype=np.int64)
     spare = data.budget.copy()
