@@ -1,4 +1,5 @@
-"""Optional numba kernels for compositing: forward, and the analytic backward.
+"""Optional numba kernels for compositing (forward, and the analytic backward) and the per-splat
+screen maths that every numba kernel here and in the utility pipeline shares.
 
 Same rules as the vectorised torch path in :mod:`l3gs_opt.renderer.rasterize` and the same
 (splat, sub-tile) pair list, but each pixel walks its sorted pairs sequentially, stopping at the
@@ -14,6 +15,8 @@ independent check (tests compare both against the per-pixel reference and each o
 from __future__ import annotations
 
 import numpy as np
+
+from .projection import COV2D_DILATION
 
 try:  # numba is optional
     import numba
@@ -36,6 +39,46 @@ if HAVE_NUMBA:
         dx = means2d[i, 0] - cx
         dy = means2d[i, 1] - cy
         return dx, dy, -0.5 * (conics[i, 0] * dx * dx + conics[i, 2] * dy * dy) - conics[i, 1] * dx * dy
+
+    @numba.njit(inline="always")
+    def _screen_cov(rot, cov6, i, x, y, z, fx, fy, lim_x, lim_y):
+        """Splat ``i``'s 2-D covariance in pixels (EWA: ``J R Sigma R^T J^T``, ``J`` at the centre
+        clamped to the view as the reference does, plus :data:`COV2D_DILATION` on the diagonal) from
+        its camera-space centre ``(x, y, z)``: ``(a, b, b10, c)`` with ``b10`` the lower-left entry
+        formed as torch forms it (``b`` up to rounding). Float64, in the torch path's order."""
+        tx = min(max(x / z, -lim_x), lim_x) * z
+        ty = min(max(y / z, -lim_y), lim_y) * z
+        j00 = fx / z
+        j02 = -fx * tx / (z * z)
+        j11 = fy / z
+        j12 = -fy * ty / (z * z)
+        # T = J R (J's zero entries add nothing), then T Sigma T^T as (T Sigma) T^T.
+        t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
+        t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
+        t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
+        t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
+        t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
+        t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
+        sxx, sxy, sxz, syy, syz, szz = cov6[i, 0], cov6[i, 1], cov6[i, 2], cov6[i, 3], cov6[i, 4], cov6[i, 5]
+        u0 = t00 * sxx + t01 * sxy + t02 * sxz
+        u1 = t00 * sxy + t01 * syy + t02 * syz
+        u2 = t00 * sxz + t01 * syz + t02 * szz
+        v0 = t10 * sxx + t11 * sxy + t12 * sxz
+        v1 = t10 * sxy + t11 * syy + t12 * syz
+        v2 = t10 * sxz + t11 * syz + t12 * szz
+        a = u0 * t00 + u1 * t01 + u2 * t02 + COV2D_DILATION
+        b = u0 * t10 + u1 * t11 + u2 * t12
+        b10 = v0 * t00 + v1 * t01 + v2 * t02
+        c = v0 * t10 + v1 * t11 + v2 * t12 + COV2D_DILATION
+        return a, b, b10, c
+
+    @numba.njit(inline="always")
+    def _screen_radius(a, c, det):
+        """The splat's pixel radius: 3 sigma of the larger eigenvalue, rounded up (the reference's
+        ``ceil(3 sqrt(lambda_1))``, with its 0.1 floor under the discriminant)."""
+        mid = 0.5 * (a + c)
+        lam1 = mid + np.sqrt(max(mid * mid - det, 0.1))
+        return np.ceil(3.0 * np.sqrt(max(lam1, 0.0)))
 
 if HAVE_NUMBA:
     @numba.njit(parallel=True, cache=True, fastmath=False)

@@ -31,7 +31,7 @@ import torch
 from dataclasses import dataclass
 
 from ._kernels import HAVE_NUMBA
-from .projection import (COV2D_DILATION, JACOBIAN_CLAMP, NEAR_PLANE, TILE_SIZE, Projection,
+from .projection import (JACOBIAN_CLAMP, NEAR_PLANE, TILE_SIZE, Projection,
                          covariances_from_params, project_gaussians)
 from .rasterize import ALPHA_MAX, ALPHA_MIN, SUBTILE, T_MIN, _pairs
 
@@ -79,7 +79,7 @@ def _walk_python(sub_start, pair_splat, means2d, conics, opac, held, pix_w, widt
 
 
 if HAVE_NUMBA:
-    from ._kernels import _falloff
+    from ._kernels import _falloff, _screen_cov, _screen_radius
 
     @numba.njit(inline="always")
     def _alpha(means2d, conics, opac, pcut, i, cx, cy):
@@ -244,28 +244,7 @@ if HAVE_NUMBA:
             rect[3, i] = 0
             if not z >= NEAR_PLANE:
                 continue
-            tx = min(max(x / z, -lim_x), lim_x) * z
-            ty = min(max(y / z, -lim_y), lim_y) * z
-            j00 = fx / z
-            j02 = -fx * tx / (z * z)
-            j11 = fy / z
-            j12 = -fy * ty / (z * z)
-            t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
-            t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
-            t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
-            t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
-            t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
-            t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
-            sxx, sxy, sxz, syy, syz, szz = cov6[i, 0], cov6[i, 1], cov6[i, 2], cov6[i, 3], cov6[i, 4], cov6[i, 5]
-            u0 = t00 * sxx + t01 * sxy + t02 * sxz
-            u1 = t00 * sxy + t01 * syy + t02 * syz
-            u2 = t00 * sxz + t01 * syz + t02 * szz
-            v0 = t10 * sxx + t11 * sxy + t12 * sxz
-            v1 = t10 * sxy + t11 * syy + t12 * syz
-            v2 = t10 * sxz + t11 * syz + t12 * szz
-            a = u0 * t00 + u1 * t01 + u2 * t02 + COV2D_DILATION
-            b = u0 * t10 + u1 * t11 + u2 * t12
-            c = v0 * t10 + v1 * t11 + v2 * t12 + COV2D_DILATION
+            a, b, _, c = _screen_cov(rot, cov6, i, x, y, z, fx, fy, lim_x, lim_y)
             det = a * c - b * b
             if not det > 0.0:
                 continue
@@ -276,9 +255,7 @@ if HAVE_NUMBA:
             conics[i, 0] = c / det
             conics[i, 1] = -b / det
             conics[i, 2] = a / det
-            mid = 0.5 * (a + c)
-            lam1 = mid + np.sqrt(max(mid * mid - det, 0.1))
-            r = np.ceil(3.0 * np.sqrt(max(lam1, 0.0)))
+            r = _screen_radius(a, c, det)
             if not (r > 0.0 and r < np.inf):
                 continue
             p0 = px - 0.5

@@ -56,11 +56,13 @@ import torch
 from l3gs_opt.scene.cameras import Camera
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.renderer import HAVE_NUMBA
-from l3gs_opt.renderer.projection import COV2D_DILATION, JACOBIAN_CLAMP, NEAR_PLANE, TILE_SIZE
+from l3gs_opt.renderer.projection import JACOBIAN_CLAMP, NEAR_PLANE, TILE_SIZE
 from l3gs_opt.scene.splats import SplatScene
 
 if HAVE_NUMBA:
     import numba
+
+    from l3gs_opt.renderer._kernels import _screen_cov, _screen_radius
 
 __all__ = ["UtilityError", "UtilityScene", "splat_utility", "object_layer_utility", "UtilityTable",
            "build_utility_table", "grid_positions", "DISTANCE_FLOOR"]
@@ -316,40 +318,11 @@ if HAVE_NUMBA:
                 y = rot[1, 0] * mx + rot[1, 1] * my + rot[1, 2] * mz + trans[1]
                 px = fx * x / z + cx
                 py = fy * y / z + cy
-                tx = min(max(x / z, -lim_x), lim_x) * z
-                ty = min(max(y / z, -lim_y), lim_y) * z
-                j00 = fx / z
-                j02 = -fx * tx / (z * z)
-                j11 = fy / z
-                j12 = -fy * ty / (z * z)
-                # T = J R (J's zero entries add nothing), then T Sigma T^T as (T Sigma) T^T.
-                t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
-                t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
-                t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
-                t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
-                t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
-                t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
-                sxx = cov6[i, 0]
-                sxy = cov6[i, 1]
-                sxz = cov6[i, 2]
-                syy = cov6[i, 3]
-                syz = cov6[i, 4]
-                szz = cov6[i, 5]
-                u0 = t00 * sxx + t01 * sxy + t02 * sxz
-                u1 = t00 * sxy + t01 * syy + t02 * syz
-                u2 = t00 * sxz + t01 * syz + t02 * szz
-                v0 = t10 * sxx + t11 * sxy + t12 * sxz
-                v1 = t10 * sxy + t11 * syy + t12 * syz
-                v2 = t10 * sxz + t11 * syz + t12 * szz
-                a = u0 * t00 + u1 * t01 + u2 * t02 + COV2D_DILATION
-                b = u0 * t10 + u1 * t11 + u2 * t12
-                c = v0 * t10 + v1 * t11 + v2 * t12 + COV2D_DILATION
+                a, b, b10, c = _screen_cov(rot, cov6, i, x, y, z, fx, fy, lim_x, lim_y)
                 det = a * c - b * b
                 if not det > 0.0:
                     continue
-                mid = 0.5 * (a + c)
-                lam1 = mid + math.sqrt(max(mid * mid - det, 0.1))
-                r = np.ceil(3.0 * math.sqrt(max(lam1, 0.0)))
+                r = _screen_radius(a, c, det)
                 if not (r > 0.0 and r < math.inf):
                     continue
                 # getRect (pixel-centre coordinates) touches a tile iff floor((p + r + 15) / 16) >= 1
@@ -364,7 +337,6 @@ if HAVE_NUMBA:
                 h = min(max(py + r, 0.0), height) - min(max(py - r, 0.0), height)
                 overlap = max(w, 0.0) * max(h, 0.0)
                 if ellipse:
-                    b10 = v0 * t00 + v1 * t01 + v2 * t02  # (T Sigma T^T)[1, 0], as torch forms it
                     overlap = 9.0 * math.pi * math.sqrt(max(a * c - b * b10, 0.0)) * (overlap / (2.0 * r) ** 2)
                 dx = mx - centre[0]
                 dy = my - centre[1]
