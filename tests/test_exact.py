@@ -475,3 +475,26 @@ def test_cumulative_branch_children_cover_every_schedule(seed: int, opt: int) ->
             assert not by[i, t + 1:].any() and not after[i, :t + 1].any()
             lost = ~(inside(by) | inside(after))
             assert not lost.any(), (i, t, schedules[lost][0])
+
+
+def test_start_heuristics_checked_first_then_run_while_time_is_left(monkeypatch) -> None:
+    """``run_starts``, shared by the three searches: a bad name anywhere in the list is refused before
+    any heuristic runs, a passed deadline runs none, and each runs with the time left."""
+    import time
+
+    from l3gs_opt.solvers.exact import starts
+
+    ran: list = []
+    monkeypatch.setattr(starts, "run_start", lambda name, inst, left: ran.append((name, left)) or name)
+    with pytest.raises(SolveError, match="start heuristic 'nope'"):
+        list(starts.run_starts(["slope", "nope"], None, None))
+    assert ran == []
+    assert list(starts.run_starts(["slope"], None, time.perf_counter() - 1.0)) == [] and ran == []
+    assert list(starts.run_starts(["slope", "static"], None, None)) == [("slope", "slope"), ("static", "static")]
+    assert ran == [("slope", None), ("static", None)]
+    ran.clear()
+    list(starts.run_starts(["slope"], None, time.perf_counter() + 30.0))
+    assert 0 < ran[0][1] <= 30.0
+    inst = random_instance(np.random.default_rng(0), options=Options())
+    with pytest.raises(SolveError, match="start heuristic"):
+        solve(inst, "exact", options={"heuristics": ["slope", "nope"]})

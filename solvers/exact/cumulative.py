@@ -45,7 +45,7 @@ from .cumulative_data import (LinkData, LinkMultipliers, Windows, fix_windows, l
 from .cumulative_order import improve_order
 from .lagrange import assignment_value, into_presolve_slots
 from .lns import MIP_BOUND_SLACK
-from .starts import check_starts, run_start
+from .starts import run_starts
 
 __all__ = ["solve_cumulative", "START_HEURISTICS", "arrived_by_model"]
 
@@ -254,13 +254,8 @@ class _Run(Clock):
         self.trace.append((self.now(), self.z, self.bound))
 
     def start(self, heuristics: tuple[str, ...]) -> None:
-        check_starts(heuristics)
         values = {}
-        for name in heuristics:
-            left = self.left()
-            if left is not None and left <= 0:
-                break
-            sol = run_start(name, self.instance, left)
+        for name, sol in run_starts(heuristics, self.instance, self.deadline):
             assign = self.data.assignment(sol.arrivals)
             values[name] = assignment_value(self.data, assign)
             self.offer(assign, name)

@@ -72,7 +72,7 @@ from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution
 from .clock import Clock
 from .colgen import ColumnPool, column_generation
 from .sides import run_sides
-from .starts import check_starts, run_start
+from .starts import run_starts
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
 from .repair import level_repair
@@ -387,15 +387,9 @@ def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.nd
 
 def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadline: float | None
            ) -> tuple[np.ndarray, str, dict[str, float]]:
-    for name in heuristics:
-        check_starts([name])
     best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
     best_val = assignment_value(data, best)
-    for name in heuristics:
-        left = None if deadline is None else deadline - time.perf_counter()
-        if left is not None and left <= 0:
-            break
-        sol = run_start(name, instance, left)
+    for name, sol in run_starts(heuristics, instance, deadline):
         assign = data.assignment(sol.arrivals)
         if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
             continue

@@ -55,7 +55,7 @@ from .separate_data import (Path, lagrangian_bound, path_bytes, path_value, pric
 from .separate_master import PathPool, path_generation
 from .separate_mip import fixed_mask, reduced_mip
 from .sides import run_sides
-from .starts import check_starts, run_start
+from .starts import check_starts, run_starts
 
 __all__ = ["solve_separate", "START_HEURISTICS"]
 
@@ -282,11 +282,7 @@ class _PathSearch(Clock):
         values: dict[str, float] = {}
         best, best_name = {}, "empty"
         h_deadline = None if self.deadline is None else self.started + START_SHARE * float(self.time_limit_s)
-        for name in heuristics if data.K else ():
-            left = None if h_deadline is None else h_deadline - time.perf_counter()
-            if left is not None and left <= 0:
-                break
-            sol = run_start(name, inst, left)
+        for name, sol in run_starts(heuristics if data.K else (), inst, h_deadline):
             paths = data.paths_of(sol.arrivals)
             if not schedule_feasible(data, paths):    # never expected: heuristics are feasible
                 continue

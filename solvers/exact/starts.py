@@ -6,13 +6,14 @@ itself.
 
 from __future__ import annotations
 
-from typing import Iterable
+import time
+from typing import Iterable, Iterator
 
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import Solution
 
-__all__ = ["START_NAMES", "check_starts", "run_start"]
+__all__ = ["START_NAMES", "check_starts", "run_start", "run_starts"]
 
 #: Every start heuristic ``exact``'s ``heuristics`` option may name.
 START_NAMES = ("rolling-future:bb", "slope", "rolling:bb", "static", "progressive", "mpc:3")
@@ -38,3 +39,16 @@ def run_start(name: str, instance: Instance, left: float | None) -> Solution:
         return rolling.solve_rolling(instance, "bb", future=name.startswith("rolling-future"), time_limit_s=left,
                                      with_bound=False)
     return rolling.solve_mpc(instance, 3, time_limit_s=left, with_bound=False)
+
+
+def run_starts(names: Iterable[str], instance: Instance, deadline: float | None) -> Iterator[tuple[str, Solution]]:
+    """Each start heuristic's ``(name, solution)`` in turn, each given the time left to ``deadline``
+    (``time.perf_counter()`` seconds; None: no limit); none once it has passed. Every name is
+    checked before the first runs."""
+    names = tuple(names)
+    check_starts(names)
+    for name in names:
+        left = None if deadline is None else deadline - time.perf_counter()
+        if left is not None and left <= 0:
+            return
+        yield name, run_start(name, instance, left)
