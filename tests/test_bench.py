@@ -211,6 +211,24 @@ def test_suites_are_deterministic():
         assert json.loads(json.dumps(specs[0].to_dict())) == specs[0].to_dict()
 
 
+def test_every_seed_gets_a_trace_window_that_fits():
+    """Regression: from seed 13 (``l3gs``, a window 60 s x seed into the trace) and seed 7
+    (``problems``, 120 s x seed) the window ran past the trace's end and the spec failed to build.
+    Windows are wrapped into the trace; a seed whose window fitted keeps it (the bench instances)."""
+    from l3gs_opt.traces.bandwidth import read_bandwidth_trace
+
+    for suite, step in (("l3gs", 60), ("problems", 120)):
+        specs = [s for s in suite_specs(suite, sizes=[20], seeds=30) if not s.single_slot]
+        for spec in specs:
+            p = spec.params
+            samples = len(read_bandwidth_trace(p["trace"]).mbps)
+            assert 0 <= p["start"] and p["start"] + p["slots"] <= samples, spec.instance_id
+            if step * p["seed"] + p["slots"] <= samples:
+                assert p["start"] == step * p["seed"], spec.instance_id
+    late = next(s for s in suite_specs("l3gs", sizes=[20], seeds=14) if s.instance_id == "T60-J20-s13")
+    assert late.build().T == 60
+
+
 def test_regression_jsonable_negative_infinity_in_details():
     """A method's details with -inf, nan, numpy scalars and odd objects become strict JSON
     (text replacement once turned ``-Infinity`` into ``-null`` and crashed the worker)."""

@@ -19,6 +19,7 @@ another machine, rebuilds the very same instance from it. Suites:
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import sys
@@ -32,7 +33,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.arguments import check_slot
 from l3gs_opt.problem.instance import MAX_UTILITY_TOTAL, Instance
 from l3gs_opt.pipeline.synth import synth_instance
-from l3gs_opt.traces.bandwidth import bundled_traces, mbps_to_bytes
+from l3gs_opt.traces.bandwidth import bundled_traces, mbps_to_bytes, read_bandwidth_trace
 
 __all__ = ["InstanceSpec", "SUITES", "ALL_SUITES", "suite_specs", "default_methods", "split_method", "knapsack_dir",
            "KNAPSACK_DIR_ENV"]
@@ -234,6 +235,17 @@ def _traces() -> list[str]:
     return sorted(bundled_traces())
 
 
+@functools.lru_cache(maxsize=None)
+def _trace_samples(trace: str) -> int:
+    return len(read_bandwidth_trace(trace).mbps)
+
+
+def _window_start(trace: str, offset: int, slots: int) -> int:
+    """``offset`` (seconds into ``trace``) wrapped so that the window of ``slots`` samples fits:
+    every seed gets an instance, and a seed whose window fits as it is keeps it."""
+    return offset % max(_trace_samples(trace) - slots + 1, 1)
+
+
 def suite_specs(suite: str, *, sizes: list[int] | None = None, seeds: int = 3, quick: bool = False) -> list[InstanceSpec]:
     """The instance specs of a suite. ``sizes`` are object counts J; ``quick`` keeps a small subset."""
     traces = _traces()
@@ -245,11 +257,13 @@ def suite_specs(suite: str, *, sizes: list[int] | None = None, seeds: int = 3, q
             for s in range(seeds):
                 specs.append(InstanceSpec(suite, f"slot-J{J}-s{s}", "l3gs_slot",
                                           {"objects": J, "seed": s, "trace": traces[s % len(traces)]}, True))
+        T = 20 if quick else 60
         for J in multi:
             for s in range(seeds):
+                trace = traces[s % len(traces)]
                 specs.append(InstanceSpec(suite, f"T60-J{J}-s{s}", "problem",
-                                          {"representation": "layered", "objects": J, "slots": 20 if quick else 60,
-                                           "seed": s, "trace": traces[s % len(traces)], "start": 60 * s}))
+                                          {"representation": "layered", "objects": J, "slots": T, "seed": s,
+                                           "trace": trace, "start": _window_start(trace, 60 * s, T)}))
     elif suite == "pisinger":
         Js = sizes or ([100, 1000] if quick else [100, 1000, 10_000])
         Ls = [5] if quick else [5, 10]
@@ -270,9 +284,10 @@ def suite_specs(suite: str, *, sizes: list[int] | None = None, seeds: int = 3, q
         for rep in ("layered", "separate"):
             for J in [1, *Js]:
                 for s in range(1 if quick else seeds):
+                    trace = traces[s % len(traces)]
                     specs.append(InstanceSpec(suite, f"{rep}-J{J}-T{T}-s{s}", "problem",
                                               {"representation": rep, "objects": J, "slots": T, "seed": s,
-                                               "trace": traces[s % len(traces)], "start": 120 * s}))
+                                               "trace": trace, "start": _window_start(trace, 120 * s, T)}))
     elif suite == "knapsack-sets":
         specs = _knapsack_specs(suite, quick)
     else:
