@@ -7,6 +7,8 @@ import subprocess
 import sys
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from script_helpers import BENCHMARKS, load_script
 
 _SCRIPT = BENCHMARKS / "bench_exact_long.py"
@@ -21,6 +23,17 @@ def long_bench():
                                          ("4, 0-1", [0, 1, 4]), ("2-3,3", [2, 3])])
 def test_seed_list(long_bench, text, seeds):
     assert long_bench.seed_list(text) == seeds
+
+
+@settings(max_examples=200, deadline=None)
+@given(parts=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 5), st.booleans()), min_size=1, max_size=6),
+       space=st.booleans())
+def test_seed_list_reads_back_what_it_is_given(long_bench, parts, space):
+    """Any comma list of seeds and ranges ("a" or "a-b"), spaces after commas or not, reads as the
+    sorted union of what it names."""
+    text = (", " if space else ",").join(f"{a}-{a + w}" if ranged else str(a) for a, w, ranged in parts)
+    expected = sorted({s for a, w, ranged in parts for s in (range(a, a + w + 1) if ranged else [a])})
+    assert long_bench.seed_list(text) == expected
 
 
 @pytest.mark.parametrize("text, part", [("1,x", "part 1"), ("3-1", "part 0"), ("", "part 0"), ("-2", "part 0")])
