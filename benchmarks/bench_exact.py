@@ -446,18 +446,25 @@ def report(args: argparse.Namespace) -> None:
               "incumbent branching starts from. Then the (chunk, slot) pairs before and after reduced-cost fixing, and how "
               "the HiGHS branch-and-cut on what is left ended (it runs to its time budget, a little short of the "
               "limit, unless it closes; restarts: stopped at a better schedule and started again on the model "
-              "fixed there).", "",
-              "| instance | LP done (s) | root done (s) | CG iterations | primal done (s) | incumbent then "
-              "| pairs allowed -> after fixing | reduced MIP | bound kind |", "|---|---|---|---|---|---|---|---|---|"]
+              "fixed there). `root MIP`: HiGHS beside the root column generation (`ROOT_MIP`; how its runs ended, "
+              "and the incumbent when column generation returned, against the one before it).", "",
+              "| instance | LP done (s) | root done (s) | CG iterations | root MIP | primal done (s) | incumbent then "
+              "| pairs allowed -> after fixing | reduced MIP | bound kind |", "|---|---|---|---|---|---|---|---|---|---|"]
     for iid, d in by_inst.items():
         r = d.get("exact")
         if r is None:
             continue
         det = r.get("details", {})
         root, tr = det.get("root", {}), det.get("trace", [])
-        # Trace points: LP, root, then one per primal phase run (each repair, the window LNS).
+        # Trace points: LP, one per root MIP run, root, then one per primal phase run (each repair,
+        # the window LNS).
+        root_runs = det.get("root_mip", {}).get("runs", [])
         n_primal = len(root.get("repair", [])) + ("after_lns" in root)
-        primal_t = tr[1 + n_primal][0] if n_primal and len(tr) > 1 + n_primal else None
+        k = 1 + len(root_runs) + n_primal
+        primal_t = tr[k][0] if n_primal and len(tr) > k else None
+        rm = det.get("root_mip")
+        root_mip = "-" if rm is None else (f"{', '.join(x['outcome'] for x in root_runs) or 'none'}: "
+                                           f"{rm['incumbent_before']:.7g} -> {rm['incumbent_after']:.7g}")
         cg = "skipped" if root.get("colgen_skipped") else \
             f"{root.get('iterations')}{'' if root.get('converged') else ' (not converged)'}"
         red = det.get("reduced_mip", {})
@@ -466,7 +473,7 @@ def report(args: argparse.Namespace) -> None:
         left = red.get("variables")
         pairs = "-" if left is None else f"{left + root.get('fixed_pairs', 0)} -> {left}"
         lines.append(f"| {iid} | {det.get('lp', {}).get('seconds', 0):.1f} | "
-                     f"{root.get('seconds', 0):.1f} | {cg} | {'-' if primal_t is None else f'{primal_t:.1f}'} | "
+                     f"{root.get('seconds', 0):.1f} | {cg} | {root_mip} | {'-' if primal_t is None else f'{primal_t:.1f}'} | "
                      f"{root.get('incumbent', float('nan')):.7g} | {pairs} | "
                      f"{red.get('outcome', '-')}{restarts} | {det.get('bound_kind', '-')} |")
     lines += _heuristics_table(by_inst, summary)

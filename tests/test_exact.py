@@ -397,11 +397,13 @@ def test_lp_neighbourhood_bands_are_nested(seed: int) -> None:
 def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
     """With RESTART_SHRINK = 1 HiGHS is restarted at every improving schedule it finds (no start
     heuristics, one-slot windows: the primal side leaves it some to find; the MIP side alone, so that
-    no race with branch-and-price decides whether it gets to find one): the answers still equal
-    the core's ILP, and at least one run restarted."""
+    no race with branch-and-price decides whether it gets to find one, and no MIP beside the root
+    column generation finds them first): the answers still equal the core's ILP, and at least one
+    run restarted."""
     import l3gs_opt.solvers.exact.search as exact_mod
 
     monkeypatch.setattr(exact_mod, "RESTART_SHRINK", 1.0)
+    monkeypatch.setattr(exact_mod, "ROOT_MIP", False)
     outcomes = []
     for seed in range(16):
         inst = random_instance(np.random.default_rng(6000 + seed), T=10, J=8, L=3, tight=0.25)
@@ -412,6 +414,29 @@ def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
         assert rel_close(sol.objective, ref.objective)
         outcomes += [run["outcome"] for run in sol.details.get("reduced_mip", {}).get("runs", [])]
     assert "restart" in outcomes
+
+
+def test_root_mip_beside_column_generation(monkeypatch) -> None:
+    """ROOT_MIP: HiGHS searches beside the root column generation. Its thread ends with the root,
+    the answers equal the core's ILP with it and without it, and on some instance its run is
+    recorded with a schedule it found or the gap it closed."""
+    helped = False
+    for seed in range(12):
+        inst = random_instance(np.random.default_rng(7000 + seed), T=10, J=8, L=3, tight=0.25)
+        ref = solve(inst, "ilp")
+        assert ref.status is Status.OPTIMAL
+        sol = solve_exact(inst, heuristics=(), lns_width=1)
+        _check(inst, sol)
+        assert not any(t.name == "exact-root-mip" for t in threading.enumerate())
+        assert sol.status is Status.OPTIMAL
+        assert rel_close(sol.objective, ref.objective)
+        runs = sol.details.get("root_mip", {}).get("runs", [])
+        helped |= any(r["outcome"] in ("optimal", "restart") for r in runs)
+    assert helped
+    monkeypatch.setattr(exact_module, "ROOT_MIP", False)
+    sol = solve_exact(inst, heuristics=(), lns_width=1)
+    assert "root_mip" not in sol.details
+    assert rel_close(sol.objective, ref.objective)
 
 
 def test_subgradient_from_lp_duals_is_a_valid_bound_no_worse_than_its_start() -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -263,8 +264,11 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
                       forced: dict[int, int], incumbent: float, time_limit_s: float | None = None,
                       max_iterations: int = 500, stall_iterations: int = 12, start_bound: float = math.inf,
                       trace: list | None = None, clock0: float | None = None, smoothing: float = 0.5,
-                      start: tuple[Multipliers, LagrangeValue] | None = None) -> CgResult:
-    """Column generation at a node until converged, stalled, pruned (bound <= incumbent) or out of time.
+                      start: tuple[Multipliers, LagrangeValue] | None = None,
+                      stop: Callable[[], bool] | None = None) -> CgResult:
+    """Column generation at a node until converged, stalled, pruned (bound <= incumbent), out of
+    time, or ``stop()`` returns true (polled before each master solve once a bound is known: e.g.
+    another thread closed the gap).
 
     ``rows`` (precedence rows (u, t) known so far) is extended in place with the rows found
     violated, so later nodes start with them. ``trace`` gets ``(seconds since clock0, bound)``.
@@ -285,7 +289,8 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
     value, xbar, converged, it = -math.inf, np.zeros((data.n, data.T)), False, 0
     master_stopped = False   # a master solve stopped short of its optimum (time limit, undecided)
     for it in range(1, max_iterations + 1):
-        if best_val is not None and time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+        if best_val is not None and ((time_limit_s is not None and time.perf_counter() - started > time_limit_s)
+                                     or (stop is not None and stop())):
             break
         solved = master.solve()
         if solved is None:

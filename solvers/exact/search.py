@@ -97,6 +97,11 @@ NEIGHBOURHOOD_SHARE = 0.1
 #: chunks the LP holds wholly in slot s may also shift to s +- BAND_WIDTH, with this time share:
 #: at J=200 it reached schedules the plain neighbourhood and the window LNS did not.
 BAND_WIDTH, BAND_SHARE = 2, 0.25
+#: While the root column generation runs (one core: the master LP is serial and the pricing takes
+#: 0.2 % of its time at J=50), HiGHS searches Problem A, fixed at the LP duals' certificate and
+#: cut off at the incumbent, on the other core; it stops when column generation does (or closes
+#: the gap itself). Not with ``branching="price"``.
+ROOT_MIP = True
 #: The reduced MIP is stopped and restarted on a smaller model when HiGHS finds a schedule at
 #: which reduced-cost fixing keeps at most this share of the pairs it was given.
 RESTART_SHRINK = 0.9
@@ -492,7 +497,7 @@ class _Search(Clock):
 
     def neighbourhood(self, x: np.ndarray, band: int = 0, share: float = NEIGHBOURHOOD_SHARE) -> None:
         left = self.left()
-        if left is not None and left <= 0:
+        if (left is not None and left <= 0) or (math.isfinite(self.bound) and _closed(self.bound, self.z)):
             return
         cand = lp_neighbourhood(self.data, x, self.allowed0, self.z, time_limit_s=None if left is None else share * left,
                                 start=self.assign, band=band, seeds=mip_seeds())
@@ -547,10 +552,27 @@ class _Search(Clock):
         left = self.left()
         self.big = big = data.n * T > COLGEN_MAX_PAIRS and start_point is not None
         # A share of the time left: the primal side and the branching need the rest.
-        root = column_generation(data, self.pool, self.rows, allowed=allowed0, forced={}, incumbent=self.z,
-                                 time_limit_s=None if left is None else (0.0 if big else COLGEN_SHARE * left),
-                                 max_iterations=1 if big else 100_000, stall_iterations=100_000, start=start_point)
-        self.root_cg = root
+        # The master LP runs on one core: HiGHS on Problem A, fixed at the LP duals' certificate,
+        # searches for schedules on the other (ROOT_MIP).
+        self.new_mip_side(seeds=(0,))
+        beside = None
+        if start_point is not None:   # (the MIP side's trace points need a bound)
+            self.bound = max(start_point[1].bound, self.z)
+        if ROOT_MIP and not big and self.branching != "price" and not _closed(self.bound, self.z):
+            self.allowed_root = self.fixed_at(self.z, allowed0)
+            z0, start0 = self.z, self.assign.copy()
+            beside = lambda: self.mip_side(z0, start0)   # noqa: E731
+        box: dict[str, Any] = {}
+
+        def price() -> None:
+            box["cg"] = column_generation(
+                data, self.pool, self.rows, allowed=allowed0, forced={}, incumbent=self.z,
+                time_limit_s=None if left is None else (0.0 if big else COLGEN_SHARE * left),
+                max_iterations=1 if big else 100_000, stall_iterations=100_000, start=start_point,
+                stop=self.stop.is_set)
+
+        run_sides(price, beside, self.stop, name="exact-root-mip")
+        self.root_cg = root = box["cg"]
         if root.value is not (start_point[1] if start_point else None):
             self.certificates.append(root.value)
         self.bound = max(root.bound, self.z) if math.isfinite(root.bound) else self.z
@@ -559,6 +581,9 @@ class _Search(Clock):
         self.details["root"] = {"bound": root.bound, "master_lp": root.master, "iterations": root.iterations,
                                 "converged": root.converged, "seconds": self.now(), "columns": len(self.pool),
                                 "precedence_rows": len(self.rows), "colgen_skipped": bool(big)}
+        if beside is not None:
+            self.take_mip("root_mip")
+            self.details["root_mip"].update(incumbent_before=z0, incumbent_after=self.z)
         if root.xbar.any():   # (empty when column generation was skipped)
             self.try_incumbent(round_schedule(data, root.xbar, allowed0), allowed0, {})
             self.neighbourhood(root.xbar)
@@ -604,25 +629,38 @@ class _Search(Clock):
         use_mip = branching in ("both", "mip") and not _closed(self.bound, self.z) and not self.out_of_time()
         # Column generation at every node is too slow where it is skipped at the root (large instances).
         use_price = branching == "price" or (branching == "both" and not self.big)
+        # Alone, the MIP side races HiGHS runs on the cores; beside the price side it has one.
+        self.new_mip_side(seeds=(0,) if use_price else mip_seeds())
+        run_sides(self.price_side if use_price else None,
+                  (lambda: self.mip_side(self.z, self.assign.copy())) if use_mip else None, self.stop, name="exact-mip")
+        if use_mip:
+            self.take_mip("reduced_mip")
+            self.hit_limit = self.mip["hit_limit"]
+        else:
+            self.take_mip(None)
+        self.bound = max(self.bound, self.z)
+        self.trace.append((self.now(), self.z, self.bound))
+
+    def new_mip_side(self, seeds: tuple[int, ...]) -> None:
+        """Fresh state for one run of :meth:`mip_side` (HiGHS runs raced over ``seeds``)."""
         self.found: list[np.ndarray] = []     # schedules the MIP side found, handed to the main thread
         self.stop = threading.Event()          # set when one side has closed the gap (or at the end)
         self.mip: dict[str, Any] = {"bound": math.inf, "kind": "", "hit_limit": False, "runs": []}
-        # Alone, the MIP side races HiGHS runs on the cores; beside the price side it has one.
-        self.mip_seeds = (0,) if use_price else mip_seeds()
-        run_sides(self.price_side if use_price else None,
-                  (lambda: self.mip_side(self.z, self.assign.copy())) if use_mip else None, self.stop, name="exact-mip")
+        self.mip_seeds = seeds
+
+    def take_mip(self, key: str | None) -> None:
+        """After the MIP side has returned: raise its error, take its schedules, and (``key``: it
+        ran) record its runs under ``details[key]`` and take its bound when smaller."""
         mip = self.mip
         if "error" in mip:
             raise mip["error"]
         self.take_found()
-        if use_mip:
-            self.hit_limit = mip["hit_limit"]
-            self.details["reduced_mip"] = ({**mip["runs"][-1], "variables": mip["runs"][0]["variables"],
-                                            "runs": mip["runs"]} if mip["runs"] else {})
-            if max(self.z, mip["bound"]) < self.bound:
-                self.bound, self.bound_kind = max(self.z, mip["bound"]), mip["kind"]
-        self.bound = max(self.bound, self.z)
-        self.trace.append((self.now(), self.z, self.bound))
+        if key is None:
+            return
+        self.details[key] = ({**mip["runs"][-1], "variables": mip["runs"][0]["variables"],
+                              "runs": mip["runs"]} if mip["runs"] else {})
+        if max(self.z, mip["bound"]) < self.bound:
+            self.bound, self.bound_kind = max(self.z, mip["bound"]), mip["kind"]
 
     def take_found(self) -> None:
         while self.found:
