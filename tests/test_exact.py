@@ -523,3 +523,13 @@ def test_start_heuristics_checked_first_then_run_while_time_is_left(monkeypatch)
     inst = random_instance(np.random.default_rng(0), options=Options())
     with pytest.raises(SolveError, match="start heuristic"):
         solve(inst, "exact", options={"heuristics": ["slope", "nope"]})
+
+
+def test_closed_needs_a_finite_bound() -> None:
+    """No bound yet (``inf``) closes nothing, though the relative tolerance of ``inf`` is ``inf``;
+    a bound at the incumbent, or within CLOSE_TOL of it, does; an infeasible node (``-inf``) does."""
+    closed = exact_module._closed
+    assert not closed(math.inf, 0.0) and not closed(math.inf, 1e300)
+    assert closed(5.0, 5.0) and closed(5.0 * (1 + 0.5 * exact_module.CLOSE_TOL), 5.0)
+    assert not closed(5.0 * (1 + 10 * exact_module.CLOSE_TOL), 5.0)
+    assert closed(-math.inf, 0.0)

@@ -131,7 +131,8 @@ FRACTIONAL_TOL = 1e-6
 
 
 def _closed(bound: float, z: float) -> bool:
-    return bound <= z + CLOSE_TOL * max(abs(bound), 1e-300)
+    # (An infinite bound, i.e. none yet, closes nothing: the relative tolerance would make it.)
+    return bound < math.inf and bound <= z + CLOSE_TOL * max(abs(bound), 1e-300)
 
 
 # -- primal side -----------------------------------------------------------------------------
@@ -497,7 +498,7 @@ class _Search(Clock):
 
     def neighbourhood(self, x: np.ndarray, band: int = 0, share: float = NEIGHBOURHOOD_SHARE) -> None:
         left = self.left()
-        if (left is not None and left <= 0) or (math.isfinite(self.bound) and _closed(self.bound, self.z)):
+        if (left is not None and left <= 0) or _closed(self.bound, self.z):
             return
         cand = lp_neighbourhood(self.data, x, self.allowed0, self.z, time_limit_s=None if left is None else share * left,
                                 start=self.assign, band=band, seeds=mip_seeds())
@@ -556,9 +557,10 @@ class _Search(Clock):
         # searches for schedules on the other (ROOT_MIP).
         self.new_mip_side(seeds=(0,))
         beside = None
-        if start_point is not None:   # (the MIP side's trace points need a bound)
+        if start_point is not None:   # (the MIP side's trace points need a bound: without one it does not run)
             self.bound = max(start_point[1].bound, self.z)
-        if ROOT_MIP and not big and self.branching != "price" and not _closed(self.bound, self.z):
+        if (ROOT_MIP and not big and self.branching != "price" and start_point is not None
+                and not _closed(self.bound, self.z)):
             self.allowed_root = self.fixed_at(self.z, allowed0)
             z0, start0 = self.z, self.assign.copy()
             beside = lambda: self.mip_side(z0, start0)   # noqa: E731
@@ -633,11 +635,9 @@ class _Search(Clock):
         self.new_mip_side(seeds=(0,) if use_price else mip_seeds())
         run_sides(self.price_side if use_price else None,
                   (lambda: self.mip_side(self.z, self.assign.copy())) if use_mip else None, self.stop, name="exact-mip")
+        self.take_mip("reduced_mip" if use_mip else None)
         if use_mip:
-            self.take_mip("reduced_mip")
             self.hit_limit = self.mip["hit_limit"]
-        else:
-            self.take_mip(None)
         self.bound = max(self.bound, self.z)
         self.trace.append((self.now(), self.z, self.bound))
 
