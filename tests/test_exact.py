@@ -219,6 +219,46 @@ def test_column_generation_stopped_by_its_master_keeps_a_valid_bound(monkeypatch
     assert cg.bound >= solve(inst, "ilp").objective * (1 - 1e-12)
 
 
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_master_kept_across_nodes_equals_a_fresh_one(seed: int, opt: int) -> None:
+    """A master moved from node to node (:meth:`Master.focus`: bounds on columns, convexity rows
+    and artificials) converges to the same master value as one built for each node alone."""
+    from l3gs_opt.solvers.exact.colgen import Master
+    from l3gs_opt.solvers.exact.search import _propagate
+
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=5, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
+    data = gap_data(inst)
+    pool, rows = ColumnPool(data), []
+    pool.add_assignment(round_schedule(data, rng.random((data.n, data.T)), data.allowed))
+    kept = Master(data, pool, rows, allowed=data.allowed, forced={})
+    pairs = np.argwhere(data.allowed)
+    used = np.zeros(data.allowed.shape, dtype=bool)
+    for _ in range(4):
+        # (Half the pairs the last node's master used are ruled out: its columns must leave.)
+        mask = data.allowed & (rng.random(data.allowed.shape) < 0.8) & ~(used & (rng.random(used.shape) < 0.5))
+        forced: dict[int, int] = {}
+        for i, t in pairs[rng.choice(len(pairs), size=min(len(pairs), int(rng.integers(0, 3))), replace=False)]:
+            forced.setdefault(int(i), int(t))
+            mask[i, t] = True
+        node = _propagate(data, mask, forced)
+        if node is None:
+            continue
+        a = column_generation(data, pool, rows, allowed=node, forced=forced, incumbent=-math.inf, master=kept)
+        b = column_generation(data, pool, rows, allowed=node, forced=forced, incumbent=-math.inf)
+        assert a.infeasible == b.infeasible
+        if a.infeasible:
+            continue
+        assert (a.xbar[~node] <= 1e-9).all()     # no mass on a pair the node rules out
+        used = a.xbar > 1e-9
+        artificial = np.asarray(kept.h.getSolution().col_value)[np.r_[kept.slot_art, kept.row_art].astype(int)]
+        if a.converged and artificial.max(initial=0.0) <= 1e-9:   # a forced item arrives wholly in its slot
+            assert all(a.xbar[i, t] >= 1 - 1e-6 for i, t in forced.items())
+        if a.converged and b.converged:
+            assert abs(a.master - b.master) <= 1e-6 * max(1.0, abs(b.master))
+
+
 def test_column_generation_master_gets_the_node_time_limit() -> None:
     """The master's HiGHS carries the node's time limit (its own limit and the wall-clock
     interrupt: :func:`new_highs`); without one, none."""

@@ -70,7 +70,7 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 
 from .clock import Clock
-from .colgen import ColumnPool, column_generation
+from .colgen import ColumnPool, Master, column_generation
 from .sides import run_sides
 from .starts import run_starts
 from . import lagrange
@@ -566,12 +566,15 @@ class _Search(Clock):
             beside = lambda: self.mip_side(z0, start0)   # noqa: E731
         box: dict[str, Any] = {}
 
+        # One master LP for the root and every node (moved between them by bound changes).
+        self.master = Master(data, self.pool, self.rows, allowed=allowed0, forced={})
+
         def price() -> None:
             box["cg"] = column_generation(
                 data, self.pool, self.rows, allowed=allowed0, forced={}, incumbent=self.z,
                 time_limit_s=None if left is None else (0.0 if big else COLGEN_SHARE * left),
                 max_iterations=1 if big else 100_000, stall_iterations=100_000, start=start_point,
-                stop=self.stop.is_set)
+                stop=self.stop.is_set, master=self.master)
 
         run_sides(price, beside, self.stop, name="exact-root-mip")
         self.root_cg = root = box["cg"]
@@ -740,7 +743,8 @@ class _Search(Clock):
                 if mask is None:
                     continue
                 cg = column_generation(data, self.pool, self.rows, allowed=mask, forced=forced, incumbent=self.z,
-                                       time_limit_s=self.left(), start_bound=node_bound, stall_iterations=8)
+                                       time_limit_s=self.left(), start_bound=node_bound, stall_iterations=8,
+                                       master=self.master)
                 if cg.infeasible:
                     continue
                 node_bound = min(node_bound, cg.bound)
