@@ -251,6 +251,8 @@ def test_master_kept_across_nodes_equals_a_fresh_one(seed: int, opt: int) -> Non
         if a.infeasible:
             continue
         assert (a.xbar[~node] <= 1e-9).all()     # no mass on a pair the node rules out
+        pos = np.nonzero(np.asarray(kept.cols) >= 0)[0]
+        assert kept._compatible_all(pos).tolist() == [kept.compatible(kept.cols[k]) for k in pos]
         used = a.xbar > 1e-9
         artificial = np.asarray(kept.h.getSolution().col_value)[np.r_[kept.slot_art, kept.row_art].astype(int)]
         if a.converged and artificial.max(initial=0.0) <= 1e-9:   # a forced item arrives wholly in its slot

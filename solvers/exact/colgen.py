@@ -144,8 +144,8 @@ class Master:
             self.forced_by_slot.setdefault(t, set()).add(i)
         self.add_columns([c for c in range(len(self.pool)) if c not in self.held])
         n, T = self.data.n, self.data.T
-        pos = np.asarray([k for k, c in enumerate(self.cols) if c >= 0], dtype=np.int32)
-        upper = np.asarray([self.inf if self.compatible(self.cols[k]) else 0.0 for k in pos.tolist()])
+        pos = np.nonzero(np.asarray(self.cols) >= 0)[0].astype(np.int32)
+        upper = np.where(self._compatible_all(pos), self.inf, 0.0)
         upper_art = [self.inf if t in self.forced_by_slot else 0.0 for t in range(T)]
         upper_art += [self.inf if u in forced else 0.0 for (u, _) in self.rows]
         art = np.r_[self.slot_art, np.asarray(self.row_art, dtype=np.int64)].astype(np.int32)
@@ -162,6 +162,31 @@ class Master:
             limit = max(float(time_limit_s), 0.01)
             self.deadline = time.perf_counter() + limit
             self.h.setOptionValue("time_limit", self.h.getRunTime() + limit)
+
+    def _compatible_all(self, pos: np.ndarray) -> np.ndarray:
+        """:meth:`compatible` of the pool columns at master positions ``pos``, in one pass over
+        their (column, item) entries (a node's master holds thousands of columns)."""
+        cache = getattr(self, "_entries_of", None)
+        if cache is None or cache[0] != pos.size:   # (columns are only ever appended)
+            cols = np.asarray(self.cols, dtype=np.int64)[pos]
+            slot = np.asarray(self.pool.slot, dtype=np.int64)[cols] if len(cols) else np.zeros(0, np.int64)
+            sizes = np.asarray([len(self.pool.items[c]) for c in cols.tolist()], dtype=np.int64)
+            owner = np.repeat(np.arange(len(cols)), sizes)
+            items = (np.concatenate([self.pool.items[c] for c in cols.tolist()]) if sizes.sum()
+                     else np.zeros(0, np.int64))
+            self._entries_of = (pos.size, slot, owner, items)
+        _, slot, owner, items = self._entries_of
+        ok = np.ones(len(slot), dtype=bool)
+        ok[owner[~self.allowed[items, slot[owner]]]] = False
+        if self.forced:
+            forced_slot = np.full(self.data.n, -1, dtype=np.int64)
+            need = np.zeros(self.data.T, dtype=np.int64)
+            for i, t in self.forced.items():
+                forced_slot[i] = t
+                need[t] += 1
+            hits = np.bincount(owner[forced_slot[items] == slot[owner]], minlength=len(slot))
+            ok &= hits == need[slot]
+        return ok
 
     # -- building --------------------------------------------------------------------------
     def compatible(self, c: int) -> bool:
