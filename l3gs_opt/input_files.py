@@ -143,6 +143,16 @@ def parse_json(text: str | bytes, error: ErrorFactory, *, field: str = "file", w
     return value
 
 
+def npz_text(arr: np.ndarray, error: ErrorFactory, *, field: str) -> str:
+    """The text of a 0-d string array read from an NPZ member. A ``.npy`` file may hold UCS-4 code
+    units above U+10FFFF, which no Python string can: numpy still makes one, and reading it back
+    (``json``, ``repr``, iteration) raises ``SystemError``. Such a member is refused here."""
+    codes = np.frombuffer(arr.tobytes(), dtype=np.dtype(np.uint32).newbyteorder(arr.dtype.byteorder))
+    if codes.size and int(codes.max()) > 0x10FFFF:
+        raise error(field, f"holds a character code {int(codes.max()):#x} above U+10FFFF (not text)")
+    return str(arr)
+
+
 def read_json(path: str | os.PathLike[str], error: ErrorFactory, *, field: str = "file",
               max_bytes: int = MAX_TEXT_BYTES, max_depth: int = MAX_JSON_DEPTH) -> Any:
     """Read and strictly decode a JSON file (see :func:`parse_json`)."""

@@ -334,6 +334,20 @@ def _npy_text(text: str) -> bytes:
     return buf.getvalue()
 
 
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_npz_text_member_with_a_code_point_above_unicode(tmp_path, order):
+    """Regression (found by test_fuzz_mutated_npy_members): a .npy string may hold UCS-4 units above
+    U+10FFFF; numpy makes a Python string of it that raises SystemError when read. One clear line."""
+    units = np.array([ord(c) for c in '["a", "b"]'], dtype=np.uint32)
+    units[2] = 0x110061
+    arr = np.frombuffer(units.astype(order + "u4").tobytes(), dtype=order + "U10").reshape(())
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    path = npz_of(tmp_path, "odd.npz", {**valid_members(base()), "names.npy": buf.getvalue()})
+    with pytest.raises(InstanceError, match=r"^names: holds a character code 0x110061 above U\+10FFFF"):
+        load_instance(path)
+
+
 def test_item8_npz_member_without_npy(tmp_path, capsys):
     # Regression: AttributeError.
     path = npz_of(tmp_path, "odd.npz", {**valid_members(base()), "notes.txt": b"hello"})

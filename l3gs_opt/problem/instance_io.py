@@ -15,7 +15,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import InstanceError
-from l3gs_opt.input_files import key_name, load_npz, parse_json, read_json
+from l3gs_opt.input_files import key_name, load_npz, npz_text, parse_json, read_json
 from l3gs_opt.problem.instance import SCHEMA, Instance, Options
 
 __all__ = ["MAX_JSON_BYTES", "MAX_NPZ_BYTES", "instance_from_dict", "instance_from_raw", "load_instance",
@@ -172,7 +172,7 @@ def npz_fields(npz: Mapping[str, np.ndarray], keys: tuple[str, ...], dims: Mappi
         else:
             if arr.ndim != 0 or arr.dtype.kind != "U":
                 raise error(key, "must be stored as JSON text in a 0-d string array")
-            out[key] = parse_json(str(arr), error, field=key)
+            out[key] = parse_json(npz_text(arr, error, field=key), error, field=key)
     return out
 
 

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from l3gs_opt.input_files import parse_json
+from l3gs_opt.input_files import npz_text, parse_json
 from l3gs_opt.problem.instance_io import (check_head, instance_from_raw, nested_array, npz_fields, read_raw_problem,
                           write_problem_file)
 from l3gs_opt.problem.items import ITEMS_SCHEMA, ItemInstance, ItemInstanceError
@@ -105,7 +105,7 @@ def _schema_of(is_npz: bool, raw: Any) -> Any:
     if arr is None or arr.ndim != 0 or arr.dtype.kind != "U":
         return None
     try:
-        return parse_json(str(arr), ItemInstanceError, field="schema")
+        return parse_json(npz_text(arr, ItemInstanceError, field="schema"), ItemInstanceError, field="schema")
     except ItemInstanceError:
         return None
 
