@@ -10,6 +10,7 @@ still has continuous columns is solved with presolve off.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from importlib.metadata import version as _pkg_version
@@ -41,22 +42,35 @@ PARALLEL_RULE_OFF = 1 << 13
 #: as optimal on the stiff suite's bytes_1e12-T5 GAP form. Without presolve all of them were right.
 
 
-def _interrupt_after(h: highspy.Highs, time_limit_s: float) -> None:
-    """Stop HiGHS at the wall-clock deadline from inside its simplex, IPM and MIP loops.
+class WallClock:
+    """A wall-clock deadline that stops HiGHS from inside its simplex, IPM and MIP loops, movable
+    between solves (:meth:`limit`).
 
     HiGHS 1.14 checks ``time_limit`` only between some phases: on a 100,000-column MCKP it ran to
     113-186 s under a 60 s limit. The interrupt callbacks run inside those loops; an interrupted
     run ends with ``kInterrupt``, reported as ``time_limit``. With them the same run took 89 s:
     HiGHS's set-up before the root node (~25 s there) calls no callback and cannot be cut short.
     """
-    deadline = time.perf_counter() + float(time_limit_s)
 
-    def check(event: Any) -> None:
-        if time.perf_counter() > deadline:
+    def __init__(self, h: highspy.Highs, time_limit_s: float | None = None) -> None:
+        self.h = h
+        self.limit(time_limit_s)
+        for hook in (h.cbSimplexInterrupt, h.cbIpmInterrupt, h.cbMipInterrupt):
+            hook.subscribe(self._check)
+
+    def limit(self, time_limit_s: float | None) -> None:
+        """The next solves stop ``time_limit_s`` seconds from now (None: never); HiGHS's own
+        ``time_limit`` counts every solve of the object, so it is set past its run time so far."""
+        if time_limit_s is None:
+            self.deadline = math.inf
+            self.h.setOptionValue("time_limit", highspy.kHighsInf)
+        else:
+            self.deadline = time.perf_counter() + float(time_limit_s)
+            self.h.setOptionValue("time_limit", self.h.getRunTime() + float(time_limit_s))
+
+    def _check(self, event: Any) -> None:
+        if time.perf_counter() > self.deadline:
             event.interrupt()
-
-    for hook in (h.cbSimplexInterrupt, h.cbIpmInterrupt, h.cbMipInterrupt):
-        hook.subscribe(check)
 
 
 #: HiGHS's MIP feasibility tolerance wherever a MIP's answer counts. With the default 1e-6, HiGHS
@@ -70,7 +84,7 @@ def new_highs(*, time_limit_s: float | None = None, mip: bool = False, proof: bo
     """A quiet HiGHS, set up as every caller here needs it (this adapter, exact's LPs and MIPs).
 
     ``time_limit_s`` (seconds) is HiGHS's own limit and a wall-clock interrupt
-    (:func:`_interrupt_after`). ``mip``: zero relative and absolute gaps (``kOptimal`` then means
+    (:class:`WallClock`). ``mip``: zero relative and absolute gaps (``kOptimal`` then means
     proven) and :data:`MIP_FEASIBILITY_TOL`; with ``proof`` (a MIP whose optimum or bound is
     reported) also presolve rule 13 off (:data:`PARALLEL_RULE_OFF`). A heuristic's MIP
     (``proof=False``: exact's window LNS, whose schedules are checked and valued anyway) keeps the
@@ -80,8 +94,7 @@ def new_highs(*, time_limit_s: float | None = None, mip: bool = False, proof: bo
     h = highspy.Highs()
     h.setOptionValue("output_flag", False)
     if time_limit_s is not None:
-        h.setOptionValue("time_limit", float(time_limit_s))
-        _interrupt_after(h, time_limit_s)
+        WallClock(h, time_limit_s)
     if mip:
         h.setOptionValue("mip_rel_gap", 0.0)
         h.setOptionValue("mip_abs_gap", 0.0)

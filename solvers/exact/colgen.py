@@ -101,16 +101,14 @@ class Master:
                  forced: dict[int, int], big_m: float | None = None, time_limit_s: float | None = None) -> None:
         import highspy
 
-        from l3gs_opt.models.backends.highs import new_highs
+        from l3gs_opt.models.backends.highs import WallClock, new_highs
 
         self.data, self.pool = data, pool
         self.big_m = master_big_m(data) if big_m is None else big_m
         self.h = new_highs()
-        self.deadline = math.inf
         # HiGHS's own limit is checked only between some phases: the wall-clock interrupt stops
         # it inside the simplex (without it one master solve at J=50 ran 19 s past a 35 s limit).
-        for hook in (self.h.cbSimplexInterrupt, self.h.cbIpmInterrupt):
-            hook.subscribe(self._interrupt)
+        self.clock = WallClock(self.h)
         self.inf = highspy.kHighsInf
         n, T = data.n, data.T
         # Rows: once [0, n), convexity [n, n + T), precedence after.
@@ -118,6 +116,9 @@ class Master:
                        np.zeros(0, np.int32), np.zeros(0))
         self.rows: list[tuple[int, int]] = []
         self.row_index: dict[tuple[int, int], int] = {}
+        self._rows_of: dict[int, list] = {}   # item -> its precedence rows ((u, t), row index)
+        # (number of real columns, then their slots and (column, item) entries): see _compatible_all
+        self._entries_of: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.cols: list[int] = []          # pool index of each master column (-1: artificial)
         self.held: set[int] = set()        # pool indices in the master
         # Artificial column of each convexity row (keeps the LP feasible when a slot is forced) and
@@ -130,14 +131,9 @@ class Master:
         self.add_rows(rows)
         self.focus(allowed, forced, time_limit_s)
 
-    def _interrupt(self, event) -> None:
-        if time.perf_counter() > self.deadline:
-            event.interrupt()
-
     def focus(self, allowed: np.ndarray, forced: dict[int, int], time_limit_s: float | None = None) -> None:
         """Move the master to a node: its arrival mask, its forced items and its time limit
-        (seconds from now; HiGHS's limit counts every solve of the object, so it is set past the
-        run time so far)."""
+        (seconds from now)."""
         self.allowed, self.forced = allowed, forced
         self.forced_by_slot = {}
         for i, t in forced.items():
@@ -155,18 +151,12 @@ class Master:
             self.h.changeColsBounds(len(idx), idx, np.zeros(len(idx)), up)
         lower = np.asarray([1.0 if t in self.forced_by_slot else -self.inf for t in range(T)])
         self.h.changeRowsBounds(T, np.arange(n, n + T, dtype=np.int32), lower, np.ones(T))
-        if time_limit_s is None:
-            self.deadline = math.inf
-            self.h.setOptionValue("time_limit", self.inf)
-        else:
-            limit = max(float(time_limit_s), 0.01)
-            self.deadline = time.perf_counter() + limit
-            self.h.setOptionValue("time_limit", self.h.getRunTime() + limit)
+        self.clock.limit(None if time_limit_s is None else max(float(time_limit_s), 0.01))
 
     def _compatible_all(self, pos: np.ndarray) -> np.ndarray:
         """:meth:`compatible` of the pool columns at master positions ``pos``, in one pass over
         their (column, item) entries (a node's master holds thousands of columns)."""
-        cache = getattr(self, "_entries_of", None)
+        cache = self._entries_of
         if cache is None or cache[0] != pos.size:   # (columns are only ever appended)
             cols = np.asarray(self.cols, dtype=np.int64)[pos]
             slot = np.asarray(self.pool.slot, dtype=np.int64)[cols] if len(cols) else np.zeros(0, np.int64)
@@ -217,12 +207,6 @@ class Master:
                         coef[r] = coef.get(r, 0.0) - 1.0
         keys = [k for k, v in coef.items() if v != 0.0]
         return keys, [coef[k] for k in keys]
-
-    @property
-    def _rows_of(self) -> dict[int, list]:
-        if not hasattr(self, "_rows_of_cache"):
-            self._rows_of_cache: dict[int, list] = {}
-        return self._rows_of_cache
 
     def add_columns(self, pool_indices: list[int]) -> None:
         if not pool_indices:

@@ -32,7 +32,7 @@ def available() -> bool:
 
 
 if njit is not None:
-    @njit(cache=True)
+    @njit(cache=True, nogil=True)   # (like the other solver kernels: the HiGHS thread runs meanwhile)
     def _search(w, p, cap, max_nodes):  # pragma: no cover - compiled
         """Items sorted by p/w descending, every w <= cap, every p > 0. Returns (best value,
         taken mask, finished)."""
