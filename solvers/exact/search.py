@@ -122,6 +122,12 @@ MIP_MARGIN_S, MIP_MARGIN_PER_PAIR_S = 1.0, 5e-5
 #: J=20 the MIP proves s1-s3 and branch-and-price s4. Large instances (column generation skipped
 #: at the root) run ``mip`` only.
 BRANCHING = ("both", "mip", "price")
+#: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
+#: open nodes whose bounds fall in one band, the newest comes first (a dive). On T60-J20-s13 and
+#: s15 whole subtrees had one bound (fractional node masters worth the optimum); plain best-first
+#: went across them breadth-first and rounded none into the optimum (development seeds 10-15:
+#: exact.md, fifteenth session).
+BOUND_BAND = 1e-5
 #: A node is closed when its bound is within this relative distance of the incumbent: below
 #: GAP_TOL so that a closed tree certifies an optimal gap.
 CLOSE_TOL = 0.1 * GAP_TOL
@@ -724,17 +730,22 @@ class _Search(Clock):
             mask = self.fixed_at(zh, mask, exact=True)
 
     def price_side(self) -> None:
-        """Best-first branch-and-price. Heap entries: (-bound, tie, forced, allowed mask, root result)."""
+        """Best-first branch-and-price (over bands of BOUND_BAND, newest first within one). Heap
+        entries: (band key, tie, bound, forced, allowed mask, root result)."""
         data, stop, max_nodes = self.data, self.stop, self.max_nodes
         counter = itertools.count()
         unresolved = -math.inf
         heap: list = []
+        band = BOUND_BAND * abs(self.bound) if math.isfinite(self.bound) else 0.0
+
+        def key(b: float) -> float:
+            return -b if band == 0 else -math.floor(b / band)
+
         if not _closed(self.bound, self.z):
-            heap.append((-self.bound, next(counter), {}, self.allowed_root, self.root_cg))
+            heap.append((key(self.bound), 0, self.bound, {}, self.allowed_root, self.root_cg))
         while heap and not stop.is_set() and not self.out_of_time() and (max_nodes is None or self.nodes < max_nodes):
             self.take_found()
-            neg, _, forced, allowed, pre = heapq.heappop(heap)
-            node_bound = -neg
+            _, _, node_bound, forced, allowed, pre = heapq.heappop(heap)
             if _closed(node_bound, self.z):
                 continue
             self.nodes += 1
@@ -750,7 +761,7 @@ class _Search(Clock):
                 node_bound = min(node_bound, cg.bound)
                 self.try_incumbent(round_schedule(data, cg.xbar, mask, forced=forced), mask, forced)
                 if (self.out_of_time() or stop.is_set()) and not _closed(node_bound, self.z):
-                    heapq.heappush(heap, (-node_bound, next(counter), forced, allowed, None))
+                    heapq.heappush(heap, (key(node_bound), -next(counter), node_bound, forced, allowed, None))
                     break
             else:
                 mask, cg = allowed, pre
@@ -764,10 +775,10 @@ class _Search(Clock):
                 unresolved = max(unresolved, node_bound)
                 continue
             for child_forced, child_mask in children:
-                heapq.heappush(heap, (-node_bound, next(counter), child_forced, child_mask, None))
+                heapq.heappush(heap, (key(node_bound), -next(counter), node_bound, child_forced, child_mask, None))
             self.trace.append((self.now(), self.z,
-                               min(self.mip["bound"], max(self.z, max((-h[0] for h in heap), default=self.z)))))
-        open_bound = max([-h[0] for h in heap if not _closed(-h[0], self.z)] + [unresolved], default=-math.inf)
+                               min(self.mip["bound"], max(self.z, max((h[2] for h in heap), default=self.z)))))
+        open_bound = max([h[2] for h in heap if not _closed(h[2], self.z)] + [unresolved], default=-math.inf)
         price_bound = min(max(self.z, open_bound), max(self.root_cg.bound, self.z))
         if open_bound == -math.inf:
             stop.set()   # the tree is closed: the MIP side may stop
