@@ -81,6 +81,33 @@ def test_price_branching_alone_proves_optimality() -> None:
     pytest.skip("no instance needed branching")
 
 
+@pytest.mark.parametrize("band", [0.0, exact_module.BOUND_BAND, 1.0])
+def test_bound_band_orders_the_tree_and_nothing_else(monkeypatch, band: float) -> None:
+    """BOUND_BAND only orders the open nodes (0: plain best-first; 1: one band, a depth-first
+    dive). With the primal moves off, so that the tree itself must find the optimum: whatever the
+    width, a closed tree ends at the ILP optimum, and a run stopped after two nodes carries a
+    bound no smaller than it (the nodes' own bounds, not their band)."""
+    monkeypatch.setattr(exact_module, "BOUND_BAND", band)
+    monkeypatch.setattr(exact_module._Search, "neighbourhood", lambda self, *a, **k: None)
+    monkeypatch.setattr(exact_module._Search, "repair", lambda self: None)
+    monkeypatch.setattr(exact_module, "window_sweep", lambda data, assign, allowed, **k: assign)
+    monkeypatch.setattr(exact_module, "local_search", lambda data, assign, allowed, **k: assign)
+    found_in_tree = 0
+    for seed in range(30):
+        inst = random_instance(np.random.default_rng(seed), T=8, J=5, L=3, tight=0.3)
+        ref = solve(inst, "ilp")
+        assert ref.status is Status.OPTIMAL
+        sol = solve_exact(inst, branching="price", heuristics=())
+        _check(inst, sol)
+        assert sol.status is Status.OPTIMAL
+        assert rel_close(sol.objective, ref.objective)
+        found_in_tree += sol.details.get("root", {}).get("incumbent", ref.objective) < ref.objective * (1 - 1e-9)
+        cut = solve_exact(inst, branching="price", heuristics=(), max_nodes=2)
+        _check(inst, cut)
+        assert cut.bound >= ref.objective * (1 - 1e-9) - 1e-9
+    assert found_in_tree >= 3, "too few instances left the optimum to the tree"
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), held=st.booleans())
 def test_bound_above_optimum_and_feasible(seed: int, opt: int, held: bool) -> None:
