@@ -146,3 +146,30 @@ def test_cpsat_refuses_an_unbounded_column_by_name():
     b.row("cap", [x, r], [1.0, 1.0], lb=1.0, ub=1.0)
     with pytest.raises(SolveError, match="'spare' is unbounded"):
         solve_model(b.build(), "cpsat", time_limit_s=5)
+
+
+def test_wall_clock_stops_highs_inside_the_simplex_and_moves_between_solves():
+    """:class:`WallClock`: a passed deadline stops the simplex through the interrupt callback alone
+    (HiGHS's own limit lifted), and ``limit`` moves it: None lets the same object solve to optimum."""
+    import highspy
+
+    from l3gs_opt.models.backends.highs import WallClock, new_highs
+
+    rng = np.random.default_rng(3)
+    m, n = 400, 600
+    h = new_highs()
+    h.setOptionValue("presolve", "off")
+    h.addCols(n, -rng.random(n), np.zeros(n), np.ones(n), 0, np.zeros(0, np.int32), np.zeros(0, np.int32),
+              np.zeros(0))
+    a = (rng.random((m, n)) < 0.1) * rng.random((m, n))
+    starts = np.arange(0, m * n, n, dtype=np.int32)
+    h.addRows(m, np.full(m, -highspy.kHighsInf), np.full(m, 5.0), m * n, starts,
+              np.tile(np.arange(n, dtype=np.int32), m), a.ravel())
+    clock = WallClock(h, 0.0)
+    h.setOptionValue("time_limit", highspy.kHighsInf)   # only the interrupt can stop it now
+    h.run()
+    assert h.getModelStatus() == highspy.HighsModelStatus.kInterrupt
+    clock.limit(None)
+    h.run()
+    assert h.getModelStatus() == highspy.HighsModelStatus.kOptimal
+    assert h.getOptionValue("time_limit")[1] > 1e9

@@ -55,6 +55,7 @@ class WallClock:
     def __init__(self, h: highspy.Highs, time_limit_s: float | None = None) -> None:
         self.h = h
         self.limit(time_limit_s)
+        self.rearmed = False   # (a new object has no interrupt to clear)
         for hook in (h.cbSimplexInterrupt, h.cbIpmInterrupt, h.cbMipInterrupt):
             hook.subscribe(self._check)
 
@@ -67,10 +68,17 @@ class WallClock:
         else:
             self.deadline = time.perf_counter() + float(time_limit_s)
             self.h.setOptionValue("time_limit", self.h.getRunTime() + float(time_limit_s))
+        # HiGHS keeps an interrupted run's interrupt flag: without clearing it at the next run's
+        # first callback, every later run of the object stops there (exact's kept master at J=50:
+        # after the root's last solve was stopped, all 899 node solves returned nothing).
+        self.rearmed = True
 
     def _check(self, event: Any) -> None:
         if time.perf_counter() > self.deadline:
             event.interrupt()
+        elif self.rearmed:
+            event.interrupt(False)
+            self.rearmed = False
 
 
 #: HiGHS's MIP feasibility tolerance wherever a MIP's answer counts. With the default 1e-6, HiGHS
