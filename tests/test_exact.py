@@ -81,6 +81,33 @@ def test_price_branching_alone_proves_optimality() -> None:
     pytest.skip("no instance needed branching")
 
 
+def test_unconverged_root_leaves_the_branching_to_highs(monkeypatch) -> None:
+    """Where the root column generation did not converge (its time share ran out), no
+    branch-and-price runs beside HiGHS: the MIP side alone closes the gap at the ILP optimum."""
+    import dataclasses
+
+    real = exact_module.column_generation
+    calls = []
+
+    def unconverged_root(*args, **kwargs):
+        calls.append(kwargs.get("start_bound", math.inf))
+        result = real(*args, **kwargs)
+        return dataclasses.replace(result, converged=False) if len(calls) == 1 else result
+
+    monkeypatch.setattr(exact_module, "column_generation", unconverged_root)
+    for seed in range(40):
+        inst = random_instance(np.random.default_rng(seed), T=8, J=5, L=3, tight=0.3)
+        sol = solve_exact(inst, heuristics=())
+        calls.clear()
+        if sol.details.get("reduced_mip"):
+            break
+    else:
+        pytest.fail("no instance reached the branching")
+    assert sol.details["nodes"] == 0
+    assert sol.status is Status.OPTIMAL
+    assert rel_close(sol.objective, solve(inst, "ilp").objective)
+
+
 @pytest.mark.parametrize("band", [0.0, exact_module.BOUND_BAND, 1.0])
 def test_bound_band_orders_the_tree_and_nothing_else(monkeypatch, band: float) -> None:
     """BOUND_BAND only orders the open nodes (0: plain best-first; 1: one band, a depth-first

@@ -120,7 +120,8 @@ MIP_MARGIN_S, MIP_MARGIN_PER_PAIR_S = 1.0, 5e-5
 #: (column generation and fixing at every node); ``both`` (default) - the two at once, HiGHS in a
 #: second thread (it releases the GIL), sharing schedules and stopping when either closes: at
 #: J=20 the MIP proves s1-s3 and branch-and-price s4. Large instances (column generation skipped
-#: at the root) run ``mip`` only.
+#: at the root), and instances whose root column generation did not converge in its share, run
+#: ``mip`` only.
 BRANCHING = ("both", "mip", "price")
 #: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
 #: open nodes whose bounds fall in one band, the newest comes first (a dive). On T60-J20-s13 and
@@ -638,8 +639,10 @@ class _Search(Clock):
         releases the GIL), or one alone; whichever closes the gap first stops the other."""
         branching = self.branching
         use_mip = branching in ("both", "mip") and not _closed(self.bound, self.z) and not self.out_of_time()
-        # Column generation at every node is too slow where it is skipped at the root (large instances).
-        use_price = branching == "price" or (branching == "both" and not self.big)
+        # Column generation at every node is too slow where it is skipped at the root (large instances)
+        # or did not converge there in its share (J=50: 2-7 nodes in the 30 s after the root); the
+        # second core then runs another HiGHS instead.
+        use_price = branching == "price" or (branching == "both" and not self.big and bool(self.root_cg.converged))
         # Alone, the MIP side races HiGHS runs on the cores; beside the price side it has one.
         self.new_mip_side(seeds=(0,) if use_price else mip_seeds())
         run_sides(self.price_side if use_price else None,
