@@ -640,7 +640,7 @@ class _Search(Clock):
         branching = self.branching
         use_mip = branching in ("both", "mip") and not _closed(self.bound, self.z) and not self.out_of_time()
         # Column generation at every node is too slow where it is skipped at the root (large instances)
-        # or did not converge there in its share (J=50: 2-7 nodes in the 30 s after the root); the
+        # or did not converge there in its share (J=50: 2-3 real nodes in the 30 s after the root); the
         # second core then runs another HiGHS instead.
         use_price = branching == "price" or (branching == "both" and not self.big and bool(self.root_cg.converged))
         # Alone, the MIP side races HiGHS runs on the cores; beside the price side it has one.
