@@ -306,7 +306,15 @@ def test_master_kept_across_nodes_equals_a_fresh_one(seed: int, opt: int) -> Non
             continue
         assert (a.xbar[~node] <= 1e-9).all()     # no mass on a pair the node rules out
         pos = np.nonzero(np.asarray(kept.cols) >= 0)[0]
-        assert kept._compatible_all(pos).tolist() == [kept.compatible(kept.cols[k]) for k in pos]
+        # The node's rule, written out per column: every item may arrive in the column's slot,
+        # and the column holds every item forced into that slot.
+        def allows(c: int) -> bool:
+            t, items = pool.slot[c], set(pool.items[c].tolist())
+            return (all(node[i, t] for i in items)
+                    and all(i in items for i, ti in forced.items() if ti == t))
+        expected = [allows(kept.cols[k]) for k in pos]
+        assert kept._compatible_all(pos).tolist() == expected
+        assert [kept.compatible(kept.cols[k]) for k in pos] == expected
         used = a.xbar > 1e-9
         artificial = np.asarray(kept.h.getSolution().col_value)[np.r_[kept.slot_art, kept.row_art].astype(int)]
         if a.converged and artificial.max(initial=0.0) <= 1e-9:   # a forced item arrives wholly in its slot

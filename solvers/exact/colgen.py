@@ -166,6 +166,18 @@ class Master:
                      else np.zeros(0, np.int64))
             self._entries_of = (pos.size, slot, owner, items)
         _, slot, owner, items = self._entries_of
+        return self._fits(slot, owner, items)
+
+    def compatible(self, c: int) -> bool:
+        """Whether the node allows pool column ``c``: every item may arrive in its slot, and it
+        holds every item forced into that slot."""
+        items = np.asarray(self.pool.items[c], dtype=np.int64)
+        slot = np.asarray([self.pool.slot[c]], dtype=np.int64)
+        return bool(self._fits(slot, np.zeros(len(items), dtype=np.int64), items)[0])
+
+    def _fits(self, slot: np.ndarray, owner: np.ndarray, items: np.ndarray) -> np.ndarray:
+        """The rule of :meth:`compatible` for columns given by their slots ``slot`` [m] and
+        (column ``owner[k]`` holds item ``items[k]``) entries."""
         ok = np.ones(len(slot), dtype=bool)
         ok[owner[~self.allowed[items, slot[owner]]]] = False
         if self.forced:
@@ -179,13 +191,6 @@ class Master:
         return ok
 
     # -- building --------------------------------------------------------------------------
-    def compatible(self, c: int) -> bool:
-        t, items = self.pool.slot[c], self.pool.items[c]
-        if len(items) and not self.allowed[items, t].all():
-            return False
-        need = self.forced_by_slot.get(t)
-        return not need or need.issubset(items.tolist())
-
     def _add_raw(self, pool_index: int, idx: list[int], val: list[float], cost: float) -> None:
         self.h.addCol(float(cost), 0.0, self.inf, len(idx), np.asarray(idx, np.int32), np.asarray(val, np.float64))
         self.cols.append(pool_index)
