@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from l3gs_opt import stop
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.arguments import check_slot, check_time_limit
 from l3gs_opt.problem.instance import Instance, scale_exponent
 from l3gs_opt.problem.items import ItemInstance
-from l3gs_opt.problem.solution import Solution, finish_solution
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
 from l3gs_opt.solvers.registry import MODEL_OPTIONS, TABLE, MethodEntry, entry, names, resolve
 
 __all__ = ["METHODS", "method_names", "resolve_method", "solve", "check_time_limit", "check_slot"]
@@ -61,7 +63,9 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
         integer is accepted; checked by :func:`check_slot`).
     time_limit_s : float, optional
         Seconds, > 0; a run that hits it says ``time_limit`` and carries a valid bound. ``None``
-        or ``inf``: no limit. Checked (:func:`check_time_limit`) before anything else.
+        or ``inf``: no limit. Checked (:func:`check_time_limit`) before anything else. A stop
+        request (:mod:`l3gs_opt.stop`: the first Ctrl-C of ``l3gs-opt solve``) ends ``exact`` and
+        the HiGHS and CP-SAT backends the same way, now, and says so in the message.
     presolve : bool
         Drop chunks that cannot matter before modelling (see :mod:`l3gs_opt.problem.presolve`). The
         optimum is unchanged, but the ``lp`` bound is that of the presolved model: dropping
@@ -81,10 +85,23 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
     if isinstance(instance, (Instance, ItemInstance)):
         exponent = scale_exponent(instance.utility, UTILITY_TOP)
         if not -UTILITY_BAND <= exponent <= UTILITY_BAND:
-            return _solve_scaled(instance, exponent, method, backend=backend, form=form, slot=slot,
-                                 time_limit_s=time_limit_s, presolve=presolve, options=options)
-    return _dispatch(instance, method, backend=backend, form=form, slot=slot, time_limit_s=time_limit_s,
-                     presolve=presolve, options=options)
+            return _noting_stop(_solve_scaled(instance, exponent, method, backend=backend, form=form, slot=slot,
+                                              time_limit_s=time_limit_s, presolve=presolve, options=options),
+                                time_limit_s)
+    return _noting_stop(_dispatch(instance, method, backend=backend, form=form, slot=slot,
+                                  time_limit_s=time_limit_s, presolve=presolve, options=options), time_limit_s)
+
+
+def _noting_stop(solution: Solution, time_limit_s: float | None) -> Solution:
+    """A run that a stop request (:mod:`l3gs_opt.stop`) ended says so in its message; its status
+    stays ``time_limit`` (stopped before a proof, with a feasible schedule and a valid bound). A
+    run that went on to its time limit all the same (CBC, which PuLP runs as a child process, does
+    not see the request) is not said to be stopped by it."""
+    if not stop.requested() or solution.status is not Status.TIME_LIMIT:
+        return solution
+    if time_limit_s is not None and solution.runtime_s >= STOP_SLACK * time_limit_s:
+        return solution
+    return dataclasses.replace(solution, message="; ".join(m for m in (solution.message, stop.STOPPED_NOTE) if m))
 
 
 _DEFAULTS = {"backend": "highs", "form": "standard", "presolve": True}
@@ -108,6 +125,9 @@ def _check_model_options(method: Any, backend: Any, form: Any, presolve: Any) ->
     if ignored:
         warnings.warn(f"method {method!r} does not use {', '.join(ignored)}: ignored", UserWarning, stacklevel=3)
 
+
+#: A run stopped on request ends before this share of its time limit (else the limit stopped it).
+STOP_SLACK = 0.95
 
 #: Utilities are solved as they are while the largest lies within 2**(UTILITY_TOP +- UTILITY_BAND)
 #: (about 1e-6 .. 1e18); beyond, on a copy scaled by a power of two (see :func:`_solve_scaled`).

@@ -20,7 +20,7 @@ SOURCES = {"l3gs_opt": ROOT / "l3gs_opt", "l3gs_opt.models": ROOT / "models",
 #: Rank of each package or module: a module may import its own rank or lower ones only.
 LAYERS = {
     "l3gs_opt.errors": 0, "l3gs_opt.input_files": 0, "l3gs_opt.jsonout": 0, "l3gs_opt.records": 0,
-    "l3gs_opt.executors": 0,
+    "l3gs_opt.executors": 0, "l3gs_opt.stop": 0,
     "l3gs_opt.data": 0,
     "l3gs_opt.problem": 1, "l3gs_opt.scene": 1, "l3gs_opt.traces": 1,
     "l3gs_opt.models": 2, "l3gs_opt.solvers": 2, "l3gs_opt.renderer": 2,

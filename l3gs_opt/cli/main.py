@@ -12,6 +12,7 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
+from l3gs_opt import stop
 from l3gs_opt.errors import L3gsError
 
 __all__ = ["main", "build_parser"]
@@ -24,9 +25,11 @@ def _cmd_solve(args: argparse.Namespace) -> int:
 
     time_limit = check_time_limit(args.time_limit, name="--time-limit")
     instance = load_problem(args.instance)
-    solution = solve(instance, args.method, backend=args.backend, form=args.form,
-                     slot=check_slot(args.slot, instance.T, name="--slot"), time_limit_s=time_limit,
-                     presolve=not args.no_presolve)
+    slot = check_slot(args.slot, instance.T, name="--slot")
+    # The first Ctrl-C stops the solve with its best schedule and bound so far; a second aborts.
+    with stop.on_interrupt("stopping: finishing with the best schedule and bound so far (Ctrl-C again to abort)"):
+        solution = solve(instance, args.method, backend=args.backend, form=args.form, slot=slot,
+                         time_limit_s=time_limit, presolve=not args.no_presolve)
     if args.json:
         from l3gs_opt.jsonout import dumps
 

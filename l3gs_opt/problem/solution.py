@@ -31,7 +31,7 @@ class Status(str, enum.Enum):
 
     OPTIMAL = "optimal"          #: proven optimal (gap <= GAP_TOL)
     FEASIBLE = "feasible"        #: a feasible schedule, no proof (heuristic, or repaired)
-    TIME_LIMIT = "time_limit"    #: stopped by the time limit; the schedule is feasible, maybe empty
+    TIME_LIMIT = "time_limit"    #: stopped by the time limit (or a stop request, said in the message); the schedule is feasible, maybe empty
     INFEASIBLE = "infeasible"    #: the backend claims no schedule exists
     ERROR = "error"              #: the backend failed; the schedule is the empty one
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from ortools.sat.python import cp_model
 
+from l3gs_opt import stop
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.solution import Status
 
@@ -74,14 +75,16 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     solver = cp_model.CpSolver()
     if time_limit_s is not None:
         solver.parameters.max_time_in_seconds = float(time_limit_s)
+    # Ctrl-C is l3gs_opt.stop's (the first one stops every solver alike, and says so), not CP-SAT's own.
+    solver.parameters.catch_sigint_signal = False
     for key, value in options.items():
         if key not in _KNOWN:
             warnings.warn(f"cpsat: unknown option {key!r} passed through to CP-SAT", stacklevel=3)
         setattr(solver.parameters, key, value)
-    code = solver.solve(m)
+    code = stop.stoppable(lambda: solver.solve(m), solver.stop_search)
     has_solution = code in (cp_model.OPTIMAL, cp_model.FEASIBLE)
     # CP-SAT stops short of a proof only at a limit; its clock includes presolve, ours the build.
-    status = mapped_status(_STATUS, code, limit_hit=time_limit_s is not None)
+    status = mapped_status(_STATUS, code, limit_hit=time_limit_s is not None or stop.requested())
     values = np.array([solver.value(x) for x in xs], dtype=np.float64) if has_solution else None
     bound = None
     if has_solution:

@@ -19,6 +19,7 @@ from typing import Any
 import highspy
 import numpy as np
 
+from l3gs_opt import stop
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
@@ -50,6 +51,7 @@ class WallClock:
     113-186 s under a 60 s limit. The interrupt callbacks run inside those loops; an interrupted
     run ends with ``kInterrupt``, reported as ``time_limit``. With them the same run took 89 s:
     HiGHS's set-up before the root node (~25 s there) calls no callback and cannot be cut short.
+    A stop request (:mod:`l3gs_opt.stop`, the first Ctrl-C of ``l3gs-opt solve``) stops it the same way.
     """
 
     def __init__(self, h: highspy.Highs, time_limit_s: float | None = None) -> None:
@@ -74,7 +76,7 @@ class WallClock:
         self.rearmed = True
 
     def _check(self, event: Any) -> None:
-        if time.perf_counter() > self.deadline:
+        if time.perf_counter() > self.deadline or stop.requested():
             event.interrupt()
         elif self.rearmed:
             event.interrupt(False)

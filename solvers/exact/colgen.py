@@ -24,6 +24,8 @@ from typing import Callable
 
 import numpy as np
 
+from l3gs_opt.stop import expired
+
 from .lagrange import GapData, LagrangeValue, Multipliers, lagrangian_value, reduced_profits
 
 __all__ = ["ColumnPool", "Master", "CgResult", "column_generation"]
@@ -359,7 +361,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
     value, xbar, converged, it = -math.inf, np.zeros((data.n, data.T)), False, 0
     master_stopped = False   # a master solve stopped short of its optimum (time limit, undecided)
     for it in range(1, max_iterations + 1):
-        if best_val is not None and ((time_limit_s is not None and time.perf_counter() - started > time_limit_s)
+        if best_val is not None and (expired(deadline)
                                      or (stop is not None and stop())):
             break
         solved = master.solve()
@@ -412,7 +414,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
         history.append(best)
         if len(history) > stall_iterations and history[-stall_iterations - 1] - best <= 1e-6 * abs(best):
             break
-        if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+        if expired(deadline):
             break
         master.add_columns(added)
     if best_val is None:   # stopped before pricing once: price at the last duals

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from l3gs_opt import stop
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 
@@ -234,7 +235,7 @@ def link_subgradient(data: LinkData, start: LinkMultipliers, *, target: float, t
     val = link_lagrangian(data, mult, first=first, deadline=deadline)
     best, best_mult = val, mult
     schedule = PolyakStep()
-    while time.perf_counter() < deadline and val.bound > target:
+    while not stop.expired(deadline) and val.bound > target:
         z = val.z.astype(np.float64)
         g_a = np.zeros_like(z)
         g_a[:, :-1] = z[:, :-1] - z[:, 1:]

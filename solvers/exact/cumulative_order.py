@@ -18,9 +18,9 @@ leaves such instances alone.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
+
+from l3gs_opt import stop
 
 from .cumulative_data import LinkData
 
@@ -64,7 +64,7 @@ def improve_order(data: LinkData, assign: np.ndarray, *, deadline: float | None 
     fut = np.concatenate([data.profit, np.zeros((data.n, 1))], axis=1)   # column T: not arriving
     order = order_of(data, assign)
     for _ in range(max_rounds):
-        if deadline is not None and time.perf_counter() > deadline:
+        if stop.expired(deadline):
             break
         slots = order_slots(data, order)
         if (slots >= T).any():      # (only from a start that is not an order of this kind)

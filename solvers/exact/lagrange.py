@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from l3gs_opt import stop
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import presolve
@@ -415,7 +416,7 @@ def subgradient(data: GapData, *, target: float, start: Multipliers | None = Non
     schedule = PolyakStep()
     has = (data.lower >= 0)[:, None]
     for _ in range(iterations):
-        if time_limit_s is not None and time.perf_counter() - started > time_limit_s:
+        if stop.expired(None if time_limit_s is None else started + time_limit_s):
             break
         g_mu, g_pi = _subgradient(data, val.x)
         # Only the directions that can move count (a multiplier at 0 with a negative row activity stays).

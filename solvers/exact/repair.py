@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from l3gs_opt import stop
+
 from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
 __all__ = ["level_repair", "RepairResult", "REPAIR_WORKERS"]
@@ -207,7 +209,8 @@ class _LevelModel:
         solver.parameters.max_time_in_seconds = max(float(time_limit_s), 0.01)
         solver.parameters.num_workers = int(workers)
         solver.parameters.random_seed = int(seed)
-        status = solver.solve(model)
+        solver.parameters.catch_sigint_signal = False   # Ctrl-C is l3gs_opt.stop's
+        status = stop.stoppable(lambda: solver.solve(model), solver.stop_search)
         if status == cp_model.INFEASIBLE:
             return "none", None
         if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):

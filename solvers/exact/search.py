@@ -68,6 +68,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.models.backends.highs_race import mip_seeds
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
+from l3gs_opt.stop import expired
 
 from .clock import Clock
 from .colgen import ColumnPool, Master, column_generation
@@ -176,7 +177,7 @@ def local_search(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, forc
     if n == 0:
         return assign
     for _ in range(max_swaps):
-        if deadline is not None and time.perf_counter() > deadline:
+        if expired(deadline):
             break
         # 1. earliest-slot moves and insertions, until none applies.
         moved = True
@@ -313,7 +314,7 @@ def reduced_cost_fixing(data: GapData, lv: LagrangeValue, bound: float, incumben
             continue
         rest = np.where(allowed[:, t], col, -np.inf)
         for k in np.nonzero(~drop & ~lv.x[cand, t])[0]:
-            if deadline is not None and time.perf_counter() > deadline:
+            if expired(deadline):
                 exact_knapsack = False   # out of time: the Dantzig test only, for the other slots
                 break
             i = cand[k]

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from l3gs_opt import stop
+
 from .separate_data import Path, PriceResult, SeparateData, lagrangian_bound, path_bytes, path_value
 
 __all__ = ["PathPool", "PathMaster", "NodeResult", "path_generation"]
@@ -221,7 +223,7 @@ def path_generation(data: SeparateData, pool: PathPool, *, allowed: np.ndarray, 
         history.append(best)
         if len(history) > stall_iterations and history[-stall_iterations - 1] - best <= 1e-7 * abs(best):
             break
-        if deadline is not None and time.perf_counter() > deadline:
+        if stop.expired(deadline):
             break
         master.add_columns(added)
     if best_pi is None:

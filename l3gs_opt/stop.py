@@ -1,0 +1,107 @@
+"""A stop request: the first Ctrl-C of a long solve ends it with the best answer found so far.
+
+A solver that runs for minutes (``exact`` with a long time limit, a MILP backend) has a schedule
+and a valid bound long before it ends. Inside :func:`on_interrupt` the first SIGINT does not raise
+:class:`KeyboardInterrupt`; it sets a process-wide flag that every time limit also obeys: the exact
+searches' clocks (:mod:`l3gs_opt.solvers.exact.clock`) read as out of time, HiGHS stops inside its
+loops (the wall-clock callback of :mod:`l3gs_opt.models.backends.highs`) and CP-SAT through its
+``stop_search`` (:func:`stoppable`). The method then finishes as it does at its time limit: status
+``time_limit``, its best schedule and a valid bound, and a message that says it was stopped on
+request. A second Ctrl-C raises :class:`KeyboardInterrupt` as usual.
+
+Not covered: CBC, which PuLP runs as a child process, does not see a request made in Python; in a
+terminal the Ctrl-C reaches it directly, and it stops without a schedule PuLP can use (status
+``error``, the schedule repaired). The compiled knapsack searches end at their own (short) limits.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from typing import Callable, Iterator, TypeVar
+
+__all__ = ["requested", "request", "clear", "expired", "on_interrupt", "stoppable", "STOPPED_NOTE"]
+
+#: What a method stopped on request says (appended to its message).
+STOPPED_NOTE = "stopped on request (Ctrl-C) before its time limit: the best schedule so far and a valid bound"
+
+_flag = threading.Event()
+T = TypeVar("T")
+
+
+def requested() -> bool:
+    """Whether a stop was requested (inside :func:`on_interrupt`)."""
+    return _flag.is_set()
+
+
+def request() -> None:
+    """Ask every running solve to stop at its next check (what the first Ctrl-C does; e.g. from
+    another thread). The request holds, for later solves too, until :func:`clear`."""
+    _flag.set()
+
+
+def expired(deadline: float | None) -> bool:
+    """Whether ``deadline`` (``time.perf_counter()`` seconds; None: none) has passed, or a stop
+    was requested: the test of every loop that runs to a deadline."""
+    return _flag.is_set() or (deadline is not None and time.perf_counter() > deadline)
+
+
+def clear() -> None:
+    """Withdraw a stop request (:func:`on_interrupt` does on entry and on exit)."""
+    _flag.clear()
+
+
+@contextmanager
+def on_interrupt(notice: str | None = None) -> Iterator[None]:
+    """Within the block, the first SIGINT requests a stop (printing ``notice`` on stderr); the
+    second raises :class:`KeyboardInterrupt`. The flag is cleared on entry and on exit, and the
+    previous handler restored. Outside the main thread (where Python allows no signal handler)
+    the block runs unchanged."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        if _flag.is_set():
+            raise KeyboardInterrupt
+        _flag.set()
+        if notice:
+            print(notice, file=sys.stderr, flush=True)
+
+    _flag.clear()
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _flag.clear()
+
+
+def stoppable(run: Callable[[], T], halt: Callable[[], None], poll_s: float = 0.05) -> T:
+    """``run()``, in a worker thread while this one waits, calling ``halt()`` once if a stop is
+    requested meanwhile (e.g. CP-SAT's ``stop_search``). A call into C that runs no Python code
+    would otherwise hold off the very signal handler that makes the request until it returns:
+    Python runs handlers in the main thread only, between its own instructions. ``run``'s
+    exception, if any, is raised here; a second Ctrl-C raises here too."""
+    out: dict[str, object] = {}
+
+    def work() -> None:
+        try:
+            out["value"] = run()
+        except BaseException as exc:   # handed to the waiting thread
+            out["error"] = exc
+
+    thread = threading.Thread(target=work, name="l3gs-stoppable", daemon=True)
+    thread.start()
+    halted = False
+    while thread.is_alive():
+        thread.join(poll_s)
+        if not halted and _flag.is_set():
+            halt()
+            halted = True
+    if "error" in out:
+        raise out["error"]  # type: ignore[misc]
+    return out["value"]  # type: ignore[return-value]

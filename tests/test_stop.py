@@ -1,0 +1,143 @@
+"""The stop request (l3gs_opt.stop): the first Ctrl-C of a long solve ends it with its best answer
+(status ``time_limit``, a feasible schedule and a valid bound, a message that says so); the second
+aborts."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from solver_helpers import check_answer
+from l3gs_opt import Options, solve, stop
+from l3gs_opt.bench.suites import suite_specs
+from l3gs_opt.cli.main import main
+from l3gs_opt.problem.instance_io import save_instance
+from l3gs_opt.problem.solution import Status
+
+#: Far beyond how long any of these solves is let run: a run that ends well before it was stopped.
+LONG_LIMIT_S = 600.0
+
+
+@pytest.fixture(autouse=True)
+def _no_request_left():
+    stop.clear()
+    yield
+    stop.clear()
+
+
+def _bench_instance(J: int, seed: int, budget: str = "per_slot"):
+    """The bench's T=60 instance (L=4, bundled Lumos5G trace): 60 s is not enough for any
+    method to prove J=20 s0 or J=50 s1 (benchmarks/results/exact*.md)."""
+    spec = next(s for s in suite_specs("l3gs", sizes=[J], seeds=seed + 1)
+                if not s.single_slot and s.params.get("seed") == seed)
+    inst = spec.build()
+    return inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": budget}))
+
+
+def _wait_for(condition, timeout_s: float = 5.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+def test_expired_follows_the_deadline_and_the_request() -> None:
+    assert not stop.expired(None)
+    assert not stop.expired(time.perf_counter() + 60)
+    assert stop.expired(time.perf_counter() - 1)
+    stop.request()
+    assert stop.requested() and stop.expired(None) and stop.expired(time.perf_counter() + 60)
+    stop.clear()
+    assert not stop.requested() and not stop.expired(None)
+
+
+def test_first_sigint_requests_a_stop_and_the_second_raises() -> None:
+    before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        with stop.on_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)
+            assert _wait_for(stop.requested)        # no KeyboardInterrupt: a request
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5.0)                         # the second one raises here
+    assert signal.getsignal(signal.SIGINT) is before
+    assert not stop.requested()
+
+
+def test_stoppable_returns_raises_and_halts_once() -> None:
+    assert stop.stoppable(lambda: 42, lambda: None) == 42
+    with pytest.raises(ZeroDivisionError):
+        stop.stoppable(lambda: 1 / 0, lambda: None)
+    halted = threading.Event()
+    calls: list[int] = []
+
+    def run() -> str:
+        stop.request()
+        assert halted.wait(5.0), "halt was not called"
+        return "halted"
+
+    def halt() -> None:
+        calls.append(1)
+        halted.set()
+
+    assert stop.stoppable(run, halt, poll_s=0.01) == "halted"
+    assert calls == [1]
+
+
+@pytest.mark.parametrize("method, J, seed, budget, after_s", [
+    ("exact", 20, 0, "per_slot", 0.5),     # during the LP and column generation
+    ("exact", 20, 0, "per_slot", 6.0),     # in the primal phases or the branching
+    ("exact", 50, 1, "cumulative", 3.0),   # the arrived-by search (HiGHS on the event model)
+    ("ilp", 50, 1, "per_slot", 3.0),       # HiGHS branch-and-cut
+    ("ilp/cpsat", 20, 0, "per_slot", 3.0),  # CP-SAT through stop_search
+])
+def test_a_stopped_solve_returns_its_best_answer(method: str, J: int, seed: int, budget: str,
+                                                 after_s: float) -> None:
+    inst = _bench_instance(J, seed, budget)
+    heuristic = solve(inst, "rolling-future:bb")
+    backend = "cpsat" if method == "ilp/cpsat" else "highs"
+    timer = threading.Timer(after_s, stop.request)
+    timer.start()
+    try:
+        sol = solve(inst, method.split("/")[0], backend=backend, time_limit_s=LONG_LIMIT_S)
+    finally:
+        timer.cancel()
+    assert sol.runtime_s < after_s + 60.0, "the request did not stop the solve"
+    assert sol.status is Status.TIME_LIMIT
+    assert stop.STOPPED_NOTE in sol.message
+    check_answer(inst, sol)
+    assert sol.bound >= heuristic.objective      # a valid bound is above every schedule
+
+
+def test_a_finished_solve_says_nothing_of_a_stop() -> None:
+    inst = _bench_instance(20, 0)
+    sol = solve(inst, "rolling-future:bb")
+    assert stop.STOPPED_NOTE not in sol.message
+
+
+@pytest.mark.parametrize("args", [["--method", "exact"], ["--backend", "cpsat"], ["--backend", "highs"]])
+def test_cli_first_ctrl_c_prints_the_best_answer(tmp_path, capsys, args: list[str]) -> None:
+    """A real SIGINT to this process: the handler runs in the main thread, which must not be
+    stuck in a C call that runs no Python code (CP-SAT: :func:`stop.stoppable`)."""
+    inst = _bench_instance(20, 0)
+    path = save_instance(inst, tmp_path / "j20.json")
+    timer = threading.Timer(3.0, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        code = main(["solve", str(path), *args, "--time-limit", str(LONG_LIMIT_S), "--json"])
+    finally:
+        timer.cancel()
+    captured = capsys.readouterr()
+    assert code == 0
+    assert "stopping:" in captured.err
+    answer = json.loads(captured.out)
+    assert answer["status"] == "time_limit" and stop.STOPPED_NOTE in answer["message"]
+    assert answer["bound"] >= answer["objective"] > 0
+    assert answer["runtime_s"] < 3.0 + 60.0, "the Ctrl-C did not stop the solve"
+    assert not stop.requested()
