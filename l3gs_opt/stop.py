@@ -11,7 +11,8 @@ request. A second Ctrl-C raises :class:`KeyboardInterrupt` as usual.
 
 Not covered: CBC, which PuLP runs as a child process, does not see a request made in Python; in a
 terminal the Ctrl-C reaches it directly, and it stops without a schedule PuLP can use (status
-``error``, the schedule repaired). The compiled knapsack searches end at their own (short) limits.
+``error``, the schedule repaired). SCIP (an optional backend) is not watched either. The compiled
+knapsack searches end at their own (short) limits.
 """
 
 from __future__ import annotations

@@ -4,6 +4,7 @@ aborts."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -115,10 +116,21 @@ def test_a_stopped_solve_returns_its_best_answer(method: str, J: int, seed: int,
     assert sol.bound >= heuristic.objective      # a valid bound is above every schedule
 
 
-def test_a_finished_solve_says_nothing_of_a_stop() -> None:
+def test_only_a_run_the_request_stopped_says_so() -> None:
+    """A heuristic that finishes (``feasible``) is not stopped by a request; nor is a run that went
+    on to its time limit (CBC: PuLP's child process does not see it)."""
+    from l3gs_opt.methods import STOP_SLACK, _noting_stop
+
     inst = _bench_instance(20, 0)
+    stop.request()
     sol = solve(inst, "rolling-future:bb")
-    assert stop.STOPPED_NOTE not in sol.message
+    assert sol.status is Status.FEASIBLE and stop.STOPPED_NOTE not in sol.message
+    timed = dataclasses.replace(sol, status=Status.TIME_LIMIT, runtime_s=30.0)
+    assert stop.STOPPED_NOTE not in _noting_stop(timed, 30.0 / STOP_SLACK * 0.999).message
+    assert stop.STOPPED_NOTE in _noting_stop(timed, 60.0).message
+    assert stop.STOPPED_NOTE in _noting_stop(timed, None).message
+    stop.clear()
+    assert stop.STOPPED_NOTE not in _noting_stop(timed, 60.0).message
 
 
 @pytest.mark.parametrize("args", [["--method", "exact"], ["--backend", "cpsat"], ["--backend", "highs"]])

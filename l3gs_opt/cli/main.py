@@ -246,7 +246,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="l3gs-opt", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("solve", help="solve an instance and print the answer")
+    p = sub.add_parser("solve", help="solve an instance and print the answer",
+                       description="Solve an instance and print the answer. The first Ctrl-C stops the solve "
+                                   "with its best schedule and a valid bound (exact, HiGHS, CP-SAT; not CBC or SCIP); "
+                                   "a second one aborts.")
     p.add_argument("instance", help="instance file (.json or .npz)")
     p.add_argument("--method", default="ilp", help="ilp (default), lp, brute, or a solver method name")
     p.add_argument("--backend", default="highs", choices=[b.value for b in Backend])
