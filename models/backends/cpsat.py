@@ -30,6 +30,14 @@ _STATUS = {cp_model.OPTIMAL: Status.OPTIMAL, cp_model.INFEASIBLE: Status.INFEASI
            cp_model.FEASIBLE: (Status.TIME_LIMIT, Status.FEASIBLE), cp_model.UNKNOWN: (Status.TIME_LIMIT, Status.FEASIBLE)}
 
 
+def run_stoppable(solver: Any, model: Any) -> Any:
+    """``solver.solve(model)`` (a ``cp_model.CpSolver`` and ``CpModel``) that a stop request
+    (:mod:`l3gs_opt.stop`) ends through ``stop_search``. Ctrl-C is ``l3gs_opt.stop``'s, not CP-SAT's
+    own (which would stop it without the request that makes every other solver stop and say so)."""
+    solver.parameters.catch_sigint_signal = False
+    return stop.stoppable(lambda: solver.solve(model), solver.stop_search)
+
+
 def version() -> str:
     import ortools
 
@@ -75,13 +83,11 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     solver = cp_model.CpSolver()
     if time_limit_s is not None:
         solver.parameters.max_time_in_seconds = float(time_limit_s)
-    # Ctrl-C is l3gs_opt.stop's (the first one stops every solver alike, and says so), not CP-SAT's own.
-    solver.parameters.catch_sigint_signal = False
     for key, value in options.items():
         if key not in _KNOWN:
             warnings.warn(f"cpsat: unknown option {key!r} passed through to CP-SAT", stacklevel=3)
         setattr(solver.parameters, key, value)
-    code = stop.stoppable(lambda: solver.solve(m), solver.stop_search)
+    code = run_stoppable(solver, m)
     has_solution = code in (cp_model.OPTIMAL, cp_model.FEASIBLE)
     # CP-SAT stops short of a proof only at a limit; its clock includes presolve, ours the build.
     status = mapped_status(_STATUS, code, limit_hit=time_limit_s is not None or stop.requested())

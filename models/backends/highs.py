@@ -76,7 +76,7 @@ class WallClock:
         self.rearmed = True
 
     def _check(self, event: Any) -> None:
-        if time.perf_counter() > self.deadline or stop.requested():
+        if stop.expired(self.deadline):
             event.interrupt()
         elif self.rearmed:
             event.interrupt(False)

@@ -30,4 +30,4 @@ class Clock:
 
     def out_of_time(self) -> bool:
         """The deadline passed, or a stop was requested."""
-        return stop.requested() or (self.deadline is not None and time.perf_counter() >= self.deadline)
+        return stop.expired(self.deadline)

@@ -21,8 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from l3gs_opt import stop
-
 from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
 
 __all__ = ["level_repair", "RepairResult", "REPAIR_WORKERS"]
@@ -196,6 +194,8 @@ class _LevelModel:
         ("found", schedule), ("none", None) when there is none, ("unknown", None) at the time limit."""
         from ortools.sat.python import cp_model
 
+        from l3gs_opt.models.backends.cpsat import run_stoppable
+
         model = self.model.clone()
         var = model.get_bool_var_from_proto_index
         gaining = [var(self.index[k]) for t, k in self.slots[target] if target_better[t]]
@@ -209,8 +209,7 @@ class _LevelModel:
         solver.parameters.max_time_in_seconds = max(float(time_limit_s), 0.01)
         solver.parameters.num_workers = int(workers)
         solver.parameters.random_seed = int(seed)
-        solver.parameters.catch_sigint_signal = False   # Ctrl-C is l3gs_opt.stop's
-        status = stop.stoppable(lambda: solver.solve(model), solver.stop_search)
+        status = run_stoppable(solver, model)
         if status == cp_model.INFEASIBLE:
             return "none", None
         if status not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
