@@ -9,10 +9,10 @@ loops (the wall-clock callback of :mod:`l3gs_opt.models.backends.highs`) and CP-
 ``time_limit``, its best schedule and a valid bound, and a message that says it was stopped on
 request. A second Ctrl-C raises :class:`KeyboardInterrupt` as usual.
 
-Not covered: CBC, which PuLP runs as a child process, does not see a request made in Python; in a
-terminal the Ctrl-C reaches it directly, and it stops without a schedule PuLP can use (status
-``error``, the schedule repaired). SCIP (an optional backend) is not watched either. The compiled
-knapsack searches end at their own (short) limits.
+CBC, which PuLP runs as a child process, does not see a request made in Python. In a terminal the
+Ctrl-C reaches it directly (it is in the terminal's process group), and it stops as at its time
+limit: its best integer schedule, if it found one, and its bound. SCIP (an optional backend) is not
+watched. The compiled knapsack searches end at their own (short) limits.
 """
 
 from __future__ import annotations

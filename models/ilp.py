@@ -54,8 +54,20 @@ def solve_built(instance: Any, build: Callable[[bool], LinearModel], *, backend:
         status = Status.FEASIBLE if result.status is Status.OPTIMAL else result.status
         message = f"LP relaxation: bound only, empty schedule; {message}"
     else:
-        arrivals = model.schedule(result.values) if result.values is not None else []
-        status = result.status
+        values, status = result.values, result.status
+        if status is Status.ERROR and values is not None:
+            values = None
+            message = f"the backend failed: its values are not read, the empty schedule is returned; {message}"
+        if values is not None:
+            count, worst = model.fractional(values)
+            if count:
+                # Not an incumbent: rounded and repaired, a relaxation would pass for one.
+                values = None
+                if status is Status.OPTIMAL:
+                    status = Status.ERROR
+                message = (f"no incumbent: the backend's values are fractional ({count} arrival variable(s), "
+                           f"up to {worst:.3g} from an integer), so the empty schedule is returned; {message}")
+        arrivals = model.schedule(values) if values is not None else []
         if result.values is None and status in (Status.TIME_LIMIT, Status.FEASIBLE):
             message = f"no incumbent found: the empty schedule is returned; {message}"
     return finish_solution(instance, arrivals, problem=model.problem, method="lp" if relax else "ilp",

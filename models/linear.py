@@ -27,6 +27,11 @@ BYTE_SPLIT_ABOVE = 2**31
 #: Base of the digit rows: every coefficient of a split row is at most 2**10, so a tolerance of
 #: 1e-6 on a carry or relative to a coefficient is a thousandth of a byte.
 BYTE_DIGIT = 2**10
+#: Largest distance from 0 or 1 of an arrival variable read as a schedule. The backends accept
+#: integers within 1e-6 (HiGHS's mip_feasibility_tolerance, CBC's integerTolerance); a value
+#: further off is a relaxation's, not an incumbent (CBC writes its LP values when it stops
+#: without one).
+INTEGRALITY_TOL = 1e-5
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,8 +81,17 @@ class LinearModel:
         return ModelSize(variables=len(self.var_names), constraints=len(self.row_names),
                          nonzeros=int(self.matrix.nnz))
 
+    def fractional(self, values: np.ndarray) -> tuple[int, float]:
+        """How many arrival variables lie more than :data:`INTEGRALITY_TOL` from 0 and 1, and the
+        largest such distance (0.0 when none does)."""
+        index = np.fromiter((i for i, _ in self.decode), dtype=np.int64, count=len(self.decode))
+        off = np.abs(values[index] - np.round(values[index])) if len(index) else np.zeros(0)
+        bad = off > INTEGRALITY_TOL
+        return int(bad.sum()), float(off[bad].max()) if bad.any() else 0.0
+
     def schedule(self, values: np.ndarray) -> list[tuple[int, int, int]]:
-        """Arrivals of a (near-)integral variable vector; values above 0.5 count as 1."""
+        """Arrivals of an integral variable vector (within :data:`INTEGRALITY_TOL`; see
+        :meth:`fractional`): values above 0.5 count as 1."""
         out: list[tuple[int, int, int]] = []
         for index, chunks in self.decode:
             if values[index] > 0.5:

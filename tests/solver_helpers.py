@@ -20,6 +20,17 @@ OPTIONS = [Options(), Options(same_slot_layers=False), Options(availability="nex
            Options(budget="cumulative"), Options(availability="next_slot", same_slot_layers=False, budget="cumulative")]
 
 
+def bench_instance(J: int, seed: int, budget: str = "per_slot") -> Instance:
+    """The bench's T=60 instance (L=4, bundled Lumos5G trace; ``benchmarks/results/exact*.md``):
+    60 s is not enough for any method to prove J=20 s0 or J=50 s1."""
+    from l3gs_opt.bench.suites import suite_specs
+
+    spec = next(s for s in suite_specs("l3gs", sizes=[J], seeds=seed + 1)
+                if not s.single_slot and s.params.get("seed") == seed)
+    inst = spec.build()
+    return inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": budget}))
+
+
 def _held(rng: np.random.Generator, representation: str, J: int, L: int) -> np.ndarray:
     if representation == "layered":
         h = rng.integers(0, L + 1, size=J)

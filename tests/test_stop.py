@@ -13,9 +13,8 @@ import time
 
 import pytest
 
-from solver_helpers import check_answer
-from l3gs_opt import Options, solve, stop
-from l3gs_opt.bench.suites import suite_specs
+from solver_helpers import bench_instance, check_answer
+from l3gs_opt import solve, stop
 from l3gs_opt.cli.main import main
 from l3gs_opt.problem.instance_io import save_instance
 from l3gs_opt.problem.solution import Status
@@ -29,15 +28,6 @@ def _no_request_left():
     stop.clear()
     yield
     stop.clear()
-
-
-def _bench_instance(J: int, seed: int, budget: str = "per_slot"):
-    """The bench's T=60 instance (L=4, bundled Lumos5G trace): 60 s is not enough for any
-    method to prove J=20 s0 or J=50 s1 (benchmarks/results/exact*.md)."""
-    spec = next(s for s in suite_specs("l3gs", sizes=[J], seeds=seed + 1)
-                if not s.single_slot and s.params.get("seed") == seed)
-    inst = spec.build()
-    return inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": budget}))
 
 
 def _wait_for(condition, timeout_s: float = 5.0) -> bool:
@@ -100,7 +90,7 @@ def test_stoppable_returns_raises_and_halts_once() -> None:
 ])
 def test_a_stopped_solve_returns_its_best_answer(method: str, J: int, seed: int, budget: str,
                                                  after_s: float) -> None:
-    inst = _bench_instance(J, seed, budget)
+    inst = bench_instance(J, seed, budget)
     heuristic = solve(inst, "rolling-future:bb")
     backend = "cpsat" if method == "ilp/cpsat" else "highs"
     timer = threading.Timer(after_s, stop.request)
@@ -121,7 +111,7 @@ def test_only_a_run_the_request_stopped_says_so() -> None:
     on to its time limit (CBC: PuLP's child process does not see it)."""
     from l3gs_opt.methods import STOP_SLACK, _noting_stop
 
-    inst = _bench_instance(20, 0)
+    inst = bench_instance(20, 0)
     stop.request()
     sol = solve(inst, "rolling-future:bb")
     assert sol.status is Status.FEASIBLE and stop.STOPPED_NOTE not in sol.message
@@ -137,7 +127,7 @@ def test_only_a_run_the_request_stopped_says_so() -> None:
 def test_cli_first_ctrl_c_prints_the_best_answer(tmp_path, capsys, args: list[str]) -> None:
     """A real SIGINT to this process: the handler runs in the main thread, which must not be
     stuck in a C call that runs no Python code (CP-SAT: :func:`stop.stoppable`)."""
-    inst = _bench_instance(20, 0)
+    inst = bench_instance(20, 0)
     path = save_instance(inst, tmp_path / "j20.json")
     timer = threading.Timer(3.0, os.kill, (os.getpid(), signal.SIGINT))
     timer.start()
@@ -153,3 +143,50 @@ def test_cli_first_ctrl_c_prints_the_best_answer(tmp_path, capsys, args: list[st
     assert answer["bound"] >= answer["objective"] > 0
     assert answer["runtime_s"] < 3.0 + 60.0, "the Ctrl-C did not stop the solve"
     assert not stop.requested()
+
+
+def _children_named(name: str) -> list[int]:
+    """This process's child processes called ``name`` (Linux /proc)."""
+    me = os.getpid()
+    pids = []
+    for task in os.listdir(f"/proc/{me}/task"):
+        with open(f"/proc/{me}/task/{task}/children", encoding="ascii") as fh:
+            pids += [int(p) for p in fh.read().split()]
+    out = []
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/comm", encoding="utf-8") as fh:
+                if fh.read().strip() == name:
+                    out.append(pid)
+        except FileNotFoundError:
+            continue
+    return out
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="finds CBC's process through Linux /proc")
+def test_a_terminal_ctrl_c_stops_cbc_with_its_bound() -> None:
+    """In a terminal the Ctrl-C reaches PuLP's CBC child as well as Python. CBC then stops as at
+    its time limit; it used to be reported as an error with a schedule rounded from its LP values.
+    J=20 s2: CBC has no integer schedule in its first 12 s here, so the answer is its bound alone."""
+    inst = bench_instance(20, 2)
+    heuristic = solve(inst, "rolling-future:bb")
+    sent: list[int] = []
+
+    def ctrl_c() -> None:
+        if _wait_for(lambda: bool(_children_named("cbc")), 20.0):
+            time.sleep(1.5)
+            stop.request()
+            for pid in _children_named("cbc"):
+                os.kill(pid, signal.SIGINT)
+                sent.append(pid)
+
+    timer = threading.Thread(target=ctrl_c)
+    timer.start()
+    sol = solve(inst, "ilp", backend="cbc", time_limit_s=LONG_LIMIT_S)
+    timer.join()
+    assert sent, "CBC's process was not found"
+    assert sol.runtime_s < 60.0, "the Ctrl-C did not stop CBC"
+    assert sol.status is Status.TIME_LIMIT, sol.message
+    assert "ctrl-c" in sol.message.lower() and stop.STOPPED_NOTE in sol.message
+    check_answer(inst, sol)
+    assert sol.bound >= heuristic.objective

@@ -248,7 +248,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", help="solve an instance and print the answer",
                        description="Solve an instance and print the answer. The first Ctrl-C stops the solve "
-                                   "with its best schedule and a valid bound (exact, HiGHS, CP-SAT; not CBC or SCIP); "
+                                   "with its best schedule and a valid bound (exact, HiGHS, CP-SAT, and CBC, which the "
+                                   "terminal's Ctrl-C reaches itself; not SCIP); "
                                    "a second one aborts.")
     p.add_argument("instance", help="instance file (.json or .npz)")
     p.add_argument("--method", default="ilp", help="ilp (default), lp, brute, or a solver method name")

@@ -36,7 +36,10 @@ _VERSION = re.compile(r"^Version:\s+(\S+)", re.M)
 
 
 #: CBC's result line, classified by :func:`_result_kind`.
-_STATUS = {"optimal": Status.OPTIMAL, "stopped on time": Status.TIME_LIMIT, "infeasible": Status.INFEASIBLE}
+#: A Ctrl-C in a terminal reaches CBC too (PuLP's child shares the terminal's process group): it
+#: stops like a time limit, with its best schedule and bound, and ``methods`` says it was a request.
+_STATUS = {"optimal": Status.OPTIMAL, "stopped on time": Status.TIME_LIMIT, "stopped on request": Status.TIME_LIMIT,
+           "infeasible": Status.INFEASIBLE}
 
 
 def _result_kind(result: str, relax: bool, pulp_status: str) -> str:
@@ -44,6 +47,8 @@ def _result_kind(result: str, relax: bool, pulp_status: str) -> str:
         return "optimal"
     if result.startswith("Stopped on time"):
         return "stopped on time"
+    if result.lower().startswith("user ctrl-c"):
+        return "stopped on request"
     if "infeasible" in result.lower():
         return "infeasible"
     if relax and pulp_status == "Optimal":   # CBC's LP path prints no "Result -" line
@@ -103,7 +108,11 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     used = np.zeros(len(xs), dtype=bool)
     used[nz] = True
     used[csr.indices] = True
-    has_solution = bool(xs) and all(v is not None for v, u in zip(raw, used) if u)
+    # A MIP stopped before CBC found an integer schedule still writes a solution file, holding the
+    # LP relaxation's fractional values ("no integer solution - continuous used"; PuLP: sol_status
+    # NoSolutionFound). Rounded and repaired, they would pass for an incumbent CBC never had.
+    integral = relax or problem.sol_status in (pulp.LpSolutionOptimal, pulp.LpSolutionIntegerFeasible)
+    has_solution = integral and bool(xs) and all(v is not None for v, u in zip(raw, used) if u)
     values = None
     if has_solution:
         values = np.array([v if v is not None else min(max(0.0, model.lb[i]), model.ub[i])
