@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine_info  # noqa: E402
+from machine import machine_info, machines_line  # noqa: E402
 
 from l3gs_opt import Options, solve  # noqa: E402
 from l3gs_opt.problem.solution import GAP_TOL  # noqa: E402
@@ -309,25 +309,6 @@ def _write(out: Path, prefix: str, lines: list[str], summary: dict) -> None:
     (out / f"{prefix}_summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n", encoding="utf-8")
 
 
-def _machines(recs: list[dict]) -> str:
-    """Which machine ran which rows (each record carries its own): one clause per machine, with its
-    labels and the UTC span of their records."""
-    groups: dict[tuple, dict] = {}
-    for r in recs:
-        m = r["machine"]
-        key = (m["cpu"], m["cores"], m["python"], json.dumps(m["packages"], sort_keys=True))
-        g = groups.setdefault(key, {"labels": set(), "when": []})
-        g["labels"].add(r["label"])
-        if r.get("finished_utc"):
-            g["when"].append(r["finished_utc"])
-    parts = []
-    for (cpu, cores, py, packages), g in groups.items():
-        when = f"; {min(g['when'])[:16]} to {max(g['when'])[:16]} UTC" if g["when"] else ""
-        parts.append(f"{cpu}, {cores} cores, Python {py}, packages {packages} (rows: {', '.join(sorted(g['labels']))}"
-                     f"{when})")
-    return ("Machines: " if len(parts) > 1 else "Machine: ") + "; ".join(parts) + "."
-
-
 def report_cumulative(args: argparse.Namespace) -> None:
     """``exact_cumulative.md``: the same instances under the cumulative budget."""
     out, prefix = Path(args.out), _prefix(args)
@@ -340,7 +321,7 @@ def report_cumulative(args: argparse.Namespace) -> None:
              "duals, reduced-cost arrival windows, HiGHS on what is left. Every method got the same time limit "
              f"({recs[0]['time_limit_s']} s); runs were sequential (which run each row is from: the notes "
              "below and each record's `finished_utc`).", "",
-             f"{_machines(recs)} The 1-minute load average before/after each run is recorded.", ""]
+             f"{machines_line(recs)} The 1-minute load average before/after each run is recorded.", ""]
     lines += _proof_table(by_inst, summary)
     lines += _size_summary(by_inst, summary)
     lines += ["", "## Bounds", "",
@@ -401,7 +382,7 @@ def report(args: argparse.Namespace) -> None:
              "Instances: `suite_specs(\"l3gs\", sizes=[J], seeds=S)` T=60 specs (layered, L=4, bundled Lumos5G "
              "traces scaled to a mean of 11.8 Mbit/s, window from 60 s x seed). Every method got the same "
              f"time limit ({recs[0]['time_limit_s']} s); runs were sequential.", "",
-             f"{_machines(recs)} "
+             f"{machines_line(recs)} "
              "**The machine was shared** with other work: the 1-minute load average before/after each run is "
              "recorded (2 cores; a load of 4 means each process got roughly half a core).", ""]
     lines += _proof_table(by_inst, summary)

@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import machine_info  # noqa: E402
+from machine import machine_info, machines_line  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
 from l3gs_opt.bench.suites import _problem, _traces, split_method  # noqa: E402
@@ -97,9 +97,9 @@ def report(args: argparse.Namespace) -> None:
           "L=4 versions whose costs and utilities are cumulative over the layers, T=60 one-second slots, "
           "bundled Lumos5G traces scaled to a mean of 11.8 Mbit/s, window from 60 s x seed). Every method "
           f"got the same time limit ({recs[0]['time_limit_s']} s); runs were sequential, in one process.", "",
-          f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; packages {m['packages']}. "
-          "**The machine was shared** with other work (a long benchmark): `uptime` at start and end of the "
-          "run, and the 1-minute load before/after each record, are below.", ""]
+          f"{machines_line(recs)} `uptime` at the start and end of each run, and the 1-minute load "
+          "before/after each record, are below: a load above 2 means the 2 cores were shared with other work "
+          "(the first runs shared theirs with a long benchmark).", ""]
     md += [f"- `{u['label']}`: {u['uptime']}" for u in uptimes] + [""]
     md += ["Gap = (bound - objective) / bound, each method's own certified bound. `status` optimal = gap <= 1e-9.",
            "", "| instance | method | status | objective | bound | gap | run time (s) | load before/after |",

@@ -5,7 +5,8 @@ Each run gets a 600 s limit; a timer requests the stop after ``stop at`` seconds
 when the solve returned, its status, gap and message. T=60 bench instances of bench_exact.py
 (none of them is proven within 60 s by these methods). CBC is run with a 30 s limit: PuLP runs it
 as a child process that does not see the request, so it ends at its limit (in a terminal the
-Ctrl-C itself reaches CBC, which then stops without a usable schedule).
+Ctrl-C itself reaches CBC, which then stops as at its time limit: its bound, and its best integer
+schedule if it has one).
 
     python benchmarks/bench_stop.py --out benchmarks/results/stop_latency.md
 """
