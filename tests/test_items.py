@@ -443,6 +443,29 @@ def test_hierarchy_shape():
     assert close(value, sum(max(utility[t, 0, 0], utility[t, 0, 1]) for t in range(2)))
 
 
+
+@pytest.mark.parametrize("build", ["distill", "hierarchy"])
+def test_variant_masks_are_zero_or_one(build):
+    """``present`` and the held masks of the bundle variants take 0/1 numbers (floats too), and a
+    2 is named by field and index: it was once read as True."""
+    cost, T = np.array([[3, 5], [2, 4]]), 2
+    utility = np.ones((T, 2, 2))
+
+    def make(**masks):
+        if build == "distill":
+            return distill_items(cost, cost, utility, utility, [10, 10], **masks)
+        return hierarchy_items(cost, utility, [10, 10], **masks)
+
+    held = "held_compact" if build == "distill" else "held"
+    assert make(present=[[1.0, 1.0], [1.0, 0.0]]).N == make(present=[[True, True], [True, False]]).N
+    with pytest.raises(ItemInstanceError, match=r"^present\[0\]\[1\] = 2: must be 0 or 1$"):
+        make(present=[[1, 2], [1, 1]])
+    with pytest.raises(ItemInstanceError, match=rf"^{held}\[1\]\[0\] = -1: must be 0 or 1$"):
+        make(**{held: [[0, 0], [-1, 0]]})
+    with pytest.raises(ItemInstanceError, match=r"^present: has shape \(2,\), expected \(J, L\) = \(2, 2\)$"):
+        make(present=[1, 1])
+
+
 # -- solver limits and dispatch -------------------------------------------------------------------------
 
 def test_closed_sets_enumerate_downsets_and_cap():

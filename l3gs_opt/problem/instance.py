@@ -161,6 +161,21 @@ def _first_index(mask: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(mask)[0])
 
 
+def binary_array(value: Any, name: str, shape: tuple[int, ...], axes: str) -> np.ndarray:
+    """``value`` as a (writable) bool array of ``shape`` (named ``axes`` in messages, e.g. "(J, L)"),
+    from 0/1 numbers; raises :class:`InstanceError` naming ``name`` and the first bad index."""
+    arr = np.asarray(value)
+    if arr.shape != shape:
+        raise InstanceError(name, f"has shape {arr.shape}, expected {axes} = {shape}")
+    if arr.size and arr.dtype.kind not in "biuf":
+        raise InstanceError(name, f"must hold 0/1 values, got dtype {arr.dtype}")
+    bad = (arr != 0) & (arr != 1)
+    if bad.any():
+        idx = _first_index(bad)
+        raise InstanceError(name, f"= {_show(arr[idx])}: must be 0 or 1", idx)
+    return arr.astype(bool)
+
+
 def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarray:
     """Canonical int64 byte array; integral floats are accepted, fractions are not."""
     arr = np.asarray(value)
@@ -297,16 +312,7 @@ class Instance:
         if held is None:
             out = np.zeros((J, L), dtype=bool)
         else:
-            arr = np.asarray(held)
-            if arr.shape != (J, L):
-                raise InstanceError("held", f"has shape {arr.shape}, expected (J, L) = {(J, L)}")
-            if arr.dtype.kind not in "biuf":
-                raise InstanceError("held", f"must hold 0/1 values, got dtype {arr.dtype}")
-            bad = (arr != 0) & (arr != 1)
-            if bad.any():
-                idx = _first_index(bad)
-                raise InstanceError("held", f"= {_show(arr[idx])}: must be 0 or 1", idx)
-            out = arr.astype(bool)
+            out = binary_array(held, "held", (J, L), "(J, L)")
             if self.representation == "layered" and L > 1:
                 gap = out[:, 1:] & ~out[:, :-1]
                 if gap.any():

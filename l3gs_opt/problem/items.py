@@ -40,7 +40,8 @@ import numpy as np
 
 from l3gs_opt.errors import InstanceError
 from l3gs_opt.problem.instance import SCHEMA as INSTANCE_SCHEMA
-from l3gs_opt.problem.instance import Instance, Options, _byte_array, _first_index, _show, checked_utility_values, validated_common
+from l3gs_opt.problem.instance import (Instance, Options, _byte_array, _first_index, _show, binary_array,
+                                       checked_utility_values, validated_common)
 
 __all__ = [
     "ITEMS_SCHEMA",
@@ -285,16 +286,7 @@ class ItemInstance:
         if held is None:
             out = np.zeros(N, dtype=bool)
         else:
-            arr = np.asarray(held)
-            if arr.shape != (N,):
-                raise ItemInstanceError("held", f"has shape {arr.shape}, expected (N,) = {(N,)}")
-            if N and arr.dtype.kind not in "biuf":
-                raise ItemInstanceError("held", f"must hold 0/1 values, got dtype {arr.dtype}")
-            bad = (arr != 0) & (arr != 1)
-            if bad.any():
-                idx = _first_index(bad)
-                raise ItemInstanceError("held", f"= {_show(arr[idx])}: must be 0 or 1", idx)
-            out = arr.astype(bool)
+            out = _ours(binary_array, held, "held", (N,), "(N,)")
             for p, c in edges.tolist():
                 if out[c] and not out[p]:
                     raise ItemInstanceError("held", f"= 1 but item {p} it requires is not held: the held set must "
@@ -518,12 +510,7 @@ def instance_arrivals(arrivals: Iterable[Sequence[int]], layers: int) -> list[tu
 def _present(present: Any, shape: tuple[int, int], name: str = "present") -> np.ndarray:
     if present is None:
         return np.ones(shape, dtype=bool)
-    arr = np.asarray(present)
-    if arr.shape != shape:
-        raise ItemInstanceError(name, f"has shape {arr.shape}, expected (J, L) = {shape}")
-    if arr.size and arr.dtype.kind not in "biu":
-        raise ItemInstanceError(name, f"must hold 0/1 values, got dtype {arr.dtype}")
-    return arr.astype(bool)
+    return _ours(binary_array, present, name, shape, "(J, L)")
 
 
 def _grid(value: Any, name: str, shape: tuple[int, ...], here: np.ndarray, *, cost: bool) -> np.ndarray:
