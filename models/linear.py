@@ -28,9 +28,9 @@ BYTE_SPLIT_ABOVE = 2**31
 #: 1e-6 on a carry or relative to a coefficient is a thousandth of a byte.
 BYTE_DIGIT = 2**10
 #: Largest distance from 0 or 1 of an arrival variable read as a schedule. The backends accept
-#: integers within 1e-6 (HiGHS's mip_feasibility_tolerance, CBC's integerTolerance); a value
-#: further off is a relaxation's, not an incumbent (CBC writes its LP values when it stops
-#: without one).
+#: integers within at most 1e-6 (CBC's integerTolerance 1e-7; HiGHS's mip_feasibility_tolerance,
+#: which its adapter sets to 1e-9; SCIP's feastol 1e-6; CP-SAT has no tolerance); a value further
+#: off is a relaxation's, not an incumbent (CBC writes its LP values when it stops without one).
 INTEGRALITY_TOL = 1e-5
 
 
