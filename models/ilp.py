@@ -67,6 +67,8 @@ def solve_built(instance: Any, build: Callable[[bool], LinearModel], *, backend:
                     status = Status.ERROR
                 message = (f"no incumbent: the backend's values are fractional ({count} arrival variable(s), "
                            f"up to {worst:.3g} from an integer), so the empty schedule is returned; {message}")
+        if status is Status.ERROR:
+            bound = None      # a failed run (or a fractional "optimum") certifies nothing
         arrivals = model.schedule(values) if values is not None else []
         if result.values is None and status in (Status.TIME_LIMIT, Status.FEASIBLE):
             message = f"no incumbent found: the empty schedule is returned; {message}"

@@ -210,6 +210,7 @@ def test_fractional_or_failed_backend_values_are_no_schedule(monkeypatch, status
         if status is Status.ERROR or fractional:
             assert len(sol.arrivals) == 0, (status, fractional)
             assert sol.status is (Status.ERROR if status is not Status.TIME_LIMIT else Status.TIME_LIMIT)
+            assert (sol.bound is None) == (sol.status is Status.ERROR)
         else:
             assert sol.objective == pytest.approx(exact.objective, rel=1e-12)
             assert sol.status is status
