@@ -26,7 +26,7 @@ from bench_exact import bench_instance  # noqa: E402
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve, stop  # noqa: E402
-from l3gs_opt.bench.suites import suite_specs  # noqa: E402
+from l3gs_opt.bench.suites import paper_spec  # noqa: E402
 
 #: (method, backend, J, seed, budget, seconds until the request, time limit)
 CASES = [
@@ -52,8 +52,7 @@ def main() -> int:
     machine = machine_info()
     rows, records = [], []
     for method, backend, J, seed, budget, after, limit in CASES:
-        spec = next(s for s in suite_specs("l3gs", sizes=[J], seeds=seed + 1)
-                    if not s.single_slot and s.params.get("seed") == seed)
+        spec = paper_spec(J, seed)
         inst = bench_instance(spec, budget)
         stop.clear()
         load = os.getloadavg()

@@ -11,6 +11,7 @@ import numpy as np
 
 from l3gs_opt import stop
 from l3gs_opt.errors import SolveError
+from l3gs_opt.models.backends import used_up
 from l3gs_opt.problem.arguments import check_slot, check_time_limit
 from l3gs_opt.problem.instance import Instance, scale_exponent
 from l3gs_opt.problem.items import ItemInstance
@@ -99,7 +100,7 @@ def _noting_stop(solution: Solution, time_limit_s: float | None) -> Solution:
     not see the request) is not said to be stopped by it."""
     if not stop.requested() or solution.status is not Status.TIME_LIMIT:
         return solution
-    if time_limit_s is not None and solution.runtime_s >= STOP_SLACK * time_limit_s:
+    if used_up(solution.runtime_s, time_limit_s):
         return solution
     return dataclasses.replace(solution, message="; ".join(m for m in (solution.message, stop.STOPPED_NOTE) if m))
 
@@ -125,9 +126,6 @@ def _check_model_options(method: Any, backend: Any, form: Any, presolve: Any) ->
     if ignored:
         warnings.warn(f"method {method!r} does not use {', '.join(ignored)}: ignored", UserWarning, stacklevel=3)
 
-
-#: A run stopped on request ends before this share of its time limit (else the limit stopped it).
-STOP_SLACK = 0.95
 
 #: Utilities are solved as they are while the largest lies within 2**(UTILITY_TOP +- UTILITY_BAND)
 #: (about 1e-6 .. 1e18); beyond, on a copy scaled by a power of two (see :func:`_solve_scaled`).

@@ -23,11 +23,9 @@ OPTIONS = [Options(), Options(same_slot_layers=False), Options(availability="nex
 def bench_instance(J: int, seed: int, budget: str = "per_slot") -> Instance:
     """The bench's T=60 instance (L=4, bundled Lumos5G trace; ``benchmarks/results/exact*.md``):
     60 s is not enough for any method to prove J=20 s0 or J=50 s1."""
-    from l3gs_opt.bench.suites import suite_specs
+    from l3gs_opt.bench.suites import paper_spec
 
-    spec = next(s for s in suite_specs("l3gs", sizes=[J], seeds=seed + 1)
-                if not s.single_slot and s.params.get("seed") == seed)
-    inst = spec.build()
+    inst = paper_spec(J, seed).build()
     return inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": budget}))
 
 

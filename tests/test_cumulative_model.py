@@ -9,17 +9,15 @@ from __future__ import annotations
 
 import pytest
 
-from l3gs_opt import Options
-from l3gs_opt.bench.suites import suite_specs
 from l3gs_opt.methods import solve
 from l3gs_opt.models.build import build_model
 from l3gs_opt.problem.solution import GAP_TOL, Status
 
+from solver_helpers import bench_instance
+
 
 def _held_out(seed: int):
-    specs = [s for s in suite_specs("l3gs", sizes=[20], seeds=seed + 1) if not s.single_slot]
-    inst = specs[seed].build()
-    return inst.replace(options=Options.from_dict({**inst.options.to_dict(), "budget": "cumulative"}))
+    return bench_instance(20, seed, "cumulative")
 
 
 def test_cumulative_rows_are_prefix_rows_over_binaries():

@@ -109,7 +109,8 @@ def test_a_stopped_solve_returns_its_best_answer(method: str, J: int, seed: int,
 def test_only_a_run_the_request_stopped_says_so() -> None:
     """A heuristic that finishes (``feasible``) is not stopped by a request; nor is a run that went
     on to its time limit (CBC: PuLP's child process does not see it)."""
-    from l3gs_opt.methods import STOP_SLACK, _noting_stop
+    from l3gs_opt.methods import _noting_stop
+    from l3gs_opt.models.backends import LIMIT_SLACK as STOP_SLACK
 
     inst = bench_instance(20, 0)
     stop.request()

@@ -35,8 +35,8 @@ from l3gs_opt.problem.instance import MAX_UTILITY_TOTAL, Instance
 from l3gs_opt.pipeline.synth import synth_instance
 from l3gs_opt.traces.bandwidth import bundled_traces, mbps_to_bytes, read_bandwidth_trace
 
-__all__ = ["InstanceSpec", "SUITES", "ALL_SUITES", "suite_specs", "default_methods", "split_method", "knapsack_dir",
-           "KNAPSACK_DIR_ENV"]
+__all__ = ["InstanceSpec", "SUITES", "ALL_SUITES", "suite_specs", "paper_spec", "default_methods", "split_method",
+           "knapsack_dir", "KNAPSACK_DIR_ENV"]
 
 #: The whole L3GS-like slot budget: one second at the paper's 11.8 Mbit/s.
 SLOT_BYTES = int(mbps_to_bytes(np.array([11.8]))[0])
@@ -306,6 +306,13 @@ _SINGLE_SLOT_METHODS = ["ilp/highs", "ilp/cbc", "ilp/cpsat", "ilp/scip", "lp/hig
 _KNAPSACK_METHODS = ["bb", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
 _MULTI_SLOT_METHODS = ["ilp/highs", "ilp/highs/gap", "ilp/cpsat", "lp/highs", "rolling:bb", "rolling-future:bb",
                        "mpc:3", "mpc:6", "progressive", "slope", "static", "brute"]
+
+
+def paper_spec(J: int, seed: int) -> InstanceSpec:
+    """The ``l3gs`` suite's multi-slot spec ``T60-J{J}-s{seed}`` (the benchmarks' paper-scale instance,
+    per-slot budget; the same whatever ``seeds`` the suite is asked for)."""
+    return next(s for s in suite_specs("l3gs", sizes=[J], seeds=seed + 1)
+                if not s.single_slot and s.params.get("seed") == seed)
 
 
 def split_method(label: str) -> tuple[str, dict[str, Any]]:

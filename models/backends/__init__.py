@@ -117,6 +117,16 @@ def mapped_status(table: StatusTable, code: Any, *, limit_hit: bool) -> Status:
     return entry
 
 
+#: A run that stopped without proof at or past this share of its time limit used the limit up.
+LIMIT_SLACK = 0.95
+
+
+def used_up(seconds: float, time_limit_s: float | None) -> bool:
+    """Whether a run of ``seconds`` that stopped without proof used up its time limit (with
+    :data:`LIMIT_SLACK`); anything sooner stopped it (an error, a stop request)."""
+    return time_limit_s is not None and seconds >= LIMIT_SLACK * time_limit_s
+
+
 def timed_out(start: float, time_limit_s: float | None) -> bool:
-    """Whether a run that stopped without proof used up its time limit (with 5% slack)."""
-    return time_limit_s is not None and time.perf_counter() - start >= 0.95 * time_limit_s
+    """:func:`used_up` for a run started at ``start`` (``time.perf_counter()``) and ending now."""
+    return used_up(time.perf_counter() - start, time_limit_s)
