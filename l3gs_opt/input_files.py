@@ -25,8 +25,9 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 
-__all__ = ["MAX_TEXT_BYTES", "MAX_JSON_DEPTH", "MAX_NPZ_BYTES", "MAX_BINARY_BYTES", "ErrorFactory",
-           "check_regular_file", "read_text", "read_bytes", "parse_json", "read_json", "load_npz", "key_name"]
+__all__ = ["MAX_TEXT_BYTES", "MAX_JSON_DEPTH", "MAX_JSON_INT_DIGITS", "MAX_NPZ_BYTES", "MAX_BINARY_BYTES",
+           "ErrorFactory", "check_regular_file", "read_text", "read_bytes", "parse_json", "read_json", "load_npz",
+           "key_name"]
 
 #: Largest JSON or text file read (bytes). A JSON instance this size already takes ~10x that in
 #: Python objects while it is parsed; larger problems belong in NPZ.
@@ -34,6 +35,10 @@ MAX_TEXT_BYTES = 256 * 2**20
 #: Deepest nesting of JSON arrays/objects accepted. Instances need 3 levels inside the top object;
 #: free-form ``meta`` gets the rest. Deeper input would reach Python's recursion limit later on.
 MAX_JSON_DEPTH = 64
+#: Most digits of one JSON integer literal. Python refuses to convert longer ones (its own
+#: ``sys.get_int_max_str_digits()`` default) with a ValueError that is not a decoding error; every
+#: integer field is checked far below this (bytes: at most ``2**53``, 16 digits).
+MAX_JSON_INT_DIGITS = 4300
 #: Largest total of uncompressed NPZ members (bytes), checked against the zip directory and each
 #: member's ``.npy`` header before anything is decompressed.
 MAX_NPZ_BYTES = 4 * 2**30
@@ -115,7 +120,8 @@ def _depth_exceeded(value: Any, limit: int) -> bool:
 def parse_json(text: str | bytes, error: ErrorFactory, *, field: str = "file", where: str = "",
                max_depth: int = MAX_JSON_DEPTH) -> Any:
     """Decode JSON strictly: no duplicate keys (the last would silently win), no ``NaN`` or
-    ``Infinity`` literals (not JSON), nesting at most ``max_depth`` deep.
+    ``Infinity`` literals (not JSON), no integer longer than :data:`MAX_JSON_INT_DIGITS` digits,
+    nesting at most ``max_depth`` deep.
 
     ``where`` prefixes messages (usually the file name).
     """
@@ -132,8 +138,14 @@ def parse_json(text: str | bytes, error: ErrorFactory, *, field: str = "file", w
     def constant(name: str) -> Any:
         raise error(field, f"{prefix}{name} is not valid JSON (write numbers only)")
 
+    def integer(digits: str) -> int:
+        if len(digits.lstrip("-")) > MAX_JSON_INT_DIGITS:
+            raise error(field, f"{prefix}an integer of {len(digits.lstrip('-'))} digits "
+                               f"(at most {MAX_JSON_INT_DIGITS})")
+        return int(digits)
+
     try:
-        value = json.loads(text, object_pairs_hook=pairs, parse_constant=constant)
+        value = json.loads(text, object_pairs_hook=pairs, parse_constant=constant, parse_int=integer)
     except RecursionError:
         raise error(field, f"{prefix}nested more than {max_depth} levels deep") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

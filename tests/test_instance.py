@@ -120,6 +120,17 @@ def test_unreadable_files_are_instance_errors(tmp_path):
         load_instance(tmp_path / "missing.json")
 
 
+def test_an_integer_python_will_not_convert_is_one_named_error(tmp_path):
+    # Python's json raises a bare ValueError (not a decoding error) past 4300 digits.
+    digits = "9" * 5000
+    (tmp_path / "big.json").write_text(json.dumps(base()).replace('"bandwidth": [', f'"bandwidth": [{digits}, ', 1))
+    with pytest.raises(InstanceError, match=r"^file: .*an integer of 5000 digits"):
+        load_instance(tmp_path / "big.json")
+    (tmp_path / "neg.json").write_text(json.dumps({**base(), "meta": {"n": 0}}).replace('"n": 0', '"n": -1' + "0" * 4300))
+    with pytest.raises(InstanceError, match=r"^file: .*an integer of 4301 digits"):
+        load_instance(tmp_path / "neg.json")
+
+
 def test_npz_unknown_key_rejected(tmp_path):
     inst = instance_from_dict(base())
     path = save_instance(inst, tmp_path / "i.npz")
