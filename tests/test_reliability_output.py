@@ -487,11 +487,11 @@ def _bench_record() -> dict:
     return {"schema": "l3gs-opt/bench-record@1", "record_id": "stiff/i/bb", "suite": "stiff", "instance_id": "i",
             "method": "bb", "status": "optimal", "J": 3, "T": 1, "L": 2, "problem": "MCKP", "objective": 5.0,
             "bound": 5.0, "runtime_s": 0.01, "feasible": True, "objective_ok": True, "flags": [],
-            "bound_only": False, "loadavg_1m": 1.0}
+            "bound_only": False, "loadavg_1m": 1.0, "spec": {"params": {"set": "s"}}, "message": None}
 
 
 _JSON_VALUES = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-5, 5), st.floats(-10, 10),
-                                      st.text(max_size=3)),
+                                      st.sampled_from([math.inf, -math.inf]), st.text(max_size=3)),
                             lambda inner: st.one_of(st.lists(inner, max_size=2),
                                                     st.dictionaries(st.text(max_size=2), inner, max_size=2)),
                             max_leaves=4)
@@ -502,7 +502,7 @@ _JSON_VALUES = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(-5, 
 def test_item8_report_on_altered_records_is_a_report_or_a_named_error(key, value, drop):
     """A bench record with one value replaced (or removed): the report's summary, or BenchError."""
     from l3gs_opt.bench.run import BenchError, check_records
-    from l3gs_opt.bench.report import annotate, summarise
+    from l3gs_opt.bench.report import annotate, known_optima_summary, summarise
 
     good = _bench_record()
     other = dict(good, record_id="stiff/i/greedy", method="greedy", status="feasible", objective=4.0, bound=None)
@@ -518,6 +518,28 @@ def test_item8_report_on_altered_records_is_a_report_or_a_named_error(key, value
         return
     summary = summarise(annotate(records))
     assert sum(s["records"] for methods in summary.values() for s in methods.values()) == 2
+    known_optima_summary(annotate(records))
+
+
+@pytest.mark.parametrize("key, value, why", [
+    ("spec", "abc", "spec = 'abc' is not an object or null"),
+    ("spec", {"params": [1]}, "spec.params = [1] is not an object or null"),
+    ("runtime_s", "1e400", "runtime_s = inf is not a finite number or null"),
+    ("runtime_s", -1.0, "runtime_s = -1.0 is negative"),
+    ("T", -3, "T = -3 is negative"),
+    ("versions", "x" * 100, "versions = 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx... is not an object or null"),
+])
+def test_item8_report_names_a_field_it_cannot_use(tmp_path, capsys, key, value, why):
+    """Each of these used to reach the report's code and end in a traceback (a string spec, an
+    infinite run time on a log axis) or in a report of nonsense (a negative size or run time)."""
+    rec = _bench_record()
+    rec[key] = "@" if value == "1e400" else value
+    path = tmp_path / "r.jsonl"
+    path.write_text(json.dumps(rec).replace('"@"', "1e400") + "\n")
+    code, _, err = run_cli(capsys, "report", path, "--out", tmp_path / "rep")
+    assert code == 2
+    assert one_error_line(err) == (f"error: {path}[0]: not a bench record ({why}; expected "
+                                   "l3gs-opt/bench-record@1 records from l3gs-opt bench or compare)")
 
 
 def test_item8_report_refuses_nan_in_a_records_file(tmp_path, capsys):

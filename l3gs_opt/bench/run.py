@@ -240,30 +240,52 @@ def _cross_check(record: dict[str, Any], state: _InstanceState) -> None:
 #: Keys every bench record has and their types (what ``report`` and the cross-checks read without a default).
 RECORD_KEYS = {"record_id": str, "suite": str, "instance_id": str, "method": str, "status": str, "J": int, "T": int,
                "L": int}
-#: Keys a record may lack or hold as null; numbers when present.
+#: Keys a record may lack or hold as null; finite numbers when present (a record writes null for a
+#: number without a finite value, and JSON's ``1e400`` reads as infinity).
 RECORD_NUMBERS = ("objective", "bound", "runtime_s", "loadavg_1m", "time_limit_s", "recomputed_objective")
+#: Of those, the ones that cannot be negative (seconds, load), like the sizes J, T and L.
+RECORD_NON_NEGATIVE = ("runtime_s", "loadavg_1m", "time_limit_s", "J", "T", "L")
 #: Keys a record may lack or hold as null; true or false when present.
 RECORD_FLAGS = ("feasible", "objective_ok", "bound_only")
+#: Keys a record may lack or hold as null, and their type when present.
+RECORD_OPTIONAL = {"problem": str, "message": str, "spec": dict, "versions": dict}
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, cut to 40 characters (a record's field may hold a whole file's worth)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _record_fault(rec: Mapping[str, Any]) -> str | None:
     """What makes ``rec`` no bench record, or None."""
     schema = rec.get("schema")
     if schema is not None and schema != RECORD_SCHEMA:
-        return f"schema {schema!r}"
+        return f"schema {_shown(schema)}"
     missing = [k for k, kind in RECORD_KEYS.items() if not isinstance(rec.get(k), kind) or isinstance(rec[k], bool)]
     if missing:
         return f"no {', '.join(f'{k} ({RECORD_KEYS[k].__name__})' for k in missing)}"
     for k in RECORD_NUMBERS:
         v = rec.get(k)
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
-            return f"{k} = {v!r} is not a number or null"
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            return f"{k} = {_shown(v)} is not a finite number or null"
+    for k in RECORD_NON_NEGATIVE:
+        v = rec.get(k)
+        if v is not None and v < 0:
+            return f"{k} = {_shown(v)} is negative"
     for k in RECORD_FLAGS:
         if rec.get(k) not in (None, True, False):
-            return f"{k} = {rec[k]!r} is not true, false or null"
+            return f"{k} = {_shown(rec[k])} is not true, false or null"
+    for k, kind in RECORD_OPTIONAL.items():
+        v = rec.get(k)
+        if v is not None and not isinstance(v, kind):
+            return f"{k} = {_shown(v)} is not {'text' if kind is str else 'an object'} or null"
+    params = (rec.get("spec") or {}).get("params")
+    if params is not None and not isinstance(params, dict):
+        return f"spec.params = {_shown(params)} is not an object or null"
     flags = rec.get("flags", [])
     if not isinstance(flags, list) or not all(isinstance(f, str) for f in flags):
-        return f"flags = {flags!r} is not a list of text"
+        return f"flags = {_shown(flags)} is not a list of text"
     return None
 
 
