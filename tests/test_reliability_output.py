@@ -547,3 +547,22 @@ def test_item8_report_refuses_nan_in_a_records_file(tmp_path, capsys):
     path.write_text(json.dumps(_bench_record()).replace("5.0", "NaN", 1) + "\n" + json.dumps(_bench_record()) + "\n")
     code, _, err = run_cli(capsys, "report", path, "--out", tmp_path / "rep")
     assert code == 2 and re.search(r"r\.jsonl\[1\]: line 1 is not a JSON record: NaN is not JSON", one_error_line(err))
+
+
+def test_an_output_path_under_a_file_is_one_error_line(tmp_path, capsys):
+    """An OSError no command foresaw (here: report's folder under a file; also render's --out) is one
+    line naming the path, exit 2, not a traceback."""
+    records = tmp_path / "r.jsonl"
+    records.write_text(json.dumps(_bench_record()) + "\n")
+    (tmp_path / "afile").write_text("x")
+    code, _, err = run_cli(capsys, "report", records, "--out", tmp_path / "afile" / "sub")
+    assert code == 2
+    assert one_error_line(err) == f"error: {tmp_path / 'afile' / 'sub'}: Not a directory"
+
+
+def test_os_error_line_names_the_paths():
+    from l3gs_opt.cli.main import os_error_line
+
+    assert os_error_line(FileExistsError(17, "File exists", "out/a")) == "out/a: a file where a folder is needed"
+    assert os_error_line(PermissionError(13, "Permission denied", "a", None, "b")) == "a -> b: Permission denied"
+    assert os_error_line(OSError("no path")) == "no path"

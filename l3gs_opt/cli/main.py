@@ -403,8 +403,22 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+    except OSError as exc:
+        # A path the user gave cannot be written or read (a file where a folder belongs, no
+        # permission, a full disk) somewhere the command's own checks did not foresee: one line
+        # naming the path, as for any other bad input.
+        print(f"error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
     finally:
         warnings.showwarning = shown
+
+
+def os_error_line(exc: OSError) -> str:
+    """``path: reason`` of an OSError (both paths of a rename), or its text when it names none."""
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    # mkdir(exist_ok=True) raises "File exists" only for a file where a folder is to be made.
+    reason = "a file where a folder is needed" if isinstance(exc, FileExistsError) else exc.strerror or str(exc)
+    return f"{' -> '.join(paths)}: {reason}" if paths else reason
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
