@@ -53,6 +53,7 @@ def base() -> dict:
     ({"options": {"availibility": "next_slot"}}, r"^options\.availibility: unknown option"),
     ({"options": {"same_slot_layers": "yes"}}, r"^options\.same_slot_layers: 'yes': must be true or false"),
     ({"slot_s": 0}, r"^slot_s: 0: must be a positive number of seconds"),
+    ({"slot_s": 10**400}, r"^slot_s: 100000000000000000000\.\.\.: must be a positive number of seconds"),
     ({"names": ["a"]}, r"^names: has 1 entries, expected J = 2"),
     ({"names": ["a", 3]}, r"^names\[1\]: 3: must be a string"),
 ])

@@ -114,9 +114,15 @@ def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count:
     """Check the fields both instance forms share: ``slot_s`` (seconds, > 0), ``options``,
     ``names`` (``count`` strings, one per ``axis`` entry) and ``meta`` (a JSON object, copied by a
     JSON round trip and frozen). Raises :class:`InstanceError` naming the field and index."""
-    if isinstance(slot_s, bool) or not isinstance(slot_s, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(slot_s) or slot_s <= 0:
-        raise InstanceError("slot_s", f"{slot_s!r}: must be a positive number of seconds")
+    number = not isinstance(slot_s, bool) and isinstance(slot_s, (int, float, np.integer, np.floating))
+    try:
+        seconds = float(slot_s) if number else math.nan
+    except OverflowError:   # an integer beyond float's range
+        seconds = math.inf
+    if not math.isfinite(seconds) or seconds <= 0:
+        text = repr(slot_s)
+        raise InstanceError("slot_s", f"{text if len(text) <= 24 else text[:21] + '...'}: must be a positive "
+                                      "number of seconds")
     options = options if options is not None else Options()
     if not isinstance(options, Options):
         options = Options.from_dict(options)
@@ -143,7 +149,7 @@ def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count:
     # Strictly decoded, one level less deep than a file allows (meta sits inside the instance
     # object): keys 1 and "1" would collide, and a saved instance must read back.
     meta = parse_json(text, lambda _key, message: InstanceError("meta", message), max_depth=MAX_JSON_DEPTH - 1)
-    return float(slot_s), options, names, types.MappingProxyType(meta)
+    return seconds, options, names, types.MappingProxyType(meta)
 
 
 def scale_exponent(values: np.ndarray, top: int) -> int:
