@@ -183,6 +183,17 @@ def test_auto_refuses_ambiguous_content(tmp_path, text, message):
         np.testing.assert_allclose(read_bandwidth_trace(tmp_path / "amb.txt", format="mahimahi").mbps, [12.0] * 3)
 
 
+def test_a_thousands_digit_number_is_a_named_error_in_every_format(tmp_path):
+    # Python refuses to convert an integer of more than 4300 digits (a bare ValueError).
+    big = "9" * 5000
+    path = _write(tmp_path, "lumos", "5\n3\n8\n" + big + "\n")
+    with pytest.raises(TraceError, match=r"line 4: throughput inf Mbit/s must be finite"):
+        read_bandwidth_trace(path)
+    path = _write(tmp_path, "mahimahi", "0\n" + big + "\n")
+    with pytest.raises(TraceError, match=r"line 2: column 1 \(timestamp_ms\) 10{30} ms is more than"):
+        read_bandwidth_trace(path, format="mahimahi")
+
+
 def test_unknown_format_is_named(tmp_path):
     with pytest.raises(TraceError, match=r"format = 'csv': must be one of auto, lumos, mahimahi, pensieve"):
         read_bandwidth_trace(_write(tmp_path, "x", "5\n"), format="csv")

@@ -298,6 +298,15 @@ _PACKET_MBIT = MAHIMAHI_PACKET_BYTES * 8 / 1e6
 #: 100 lines in 1.2 s).
 MIN_AUTO_MAHIMAHI_LINES = 100
 _UINT = re.compile(r"\d+")
+#: Integers above this are only ever refused as too large; capping them here keeps Python from
+#: converting a thousands-digit line (it refuses past 4300 digits with a bare ValueError).
+_UINT_CAP = 10**30
+
+
+def _uint(token: str) -> int:
+    """The value of a string of digits, at most :data:`_UINT_CAP`."""
+    digits = token.lstrip("0")
+    return _UINT_CAP if len(digits) > len(str(_UINT_CAP)) else min(int(digits or "0"), _UINT_CAP)
 _FLOAT_TOKEN = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?(?:inf|nan)", re.IGNORECASE)
 
 
@@ -331,7 +340,7 @@ def detect_format(text: str, path: str | os.PathLike[str] = "trace") -> str:
             first_one = first_one or number
             if all_uint:
                 if _UINT.fullmatch(tokens[0]):
-                    integers.append(int(tokens[0]))
+                    integers.append(_uint(tokens[0]))
                 else:
                     all_uint = False
     if two:
@@ -375,7 +384,7 @@ def _parse_mahimahi(text: str, path: str | os.PathLike[str] = "trace") -> np.nda
             what = "has more than one column" if len(s.split()) > 1 else "is not a non-negative integer"
             raise TraceError(f"{path}: line {number}: column 1 (timestamp_ms) {s[:40]!r} {what}: a Mahimahi "
                              f"trace has one integer millisecond a line")
-        t = int(s)
+        t = _uint(s)
         if t < previous:
             raise TraceError(f"{path}: line {number}: column 1 (timestamp_ms) {t} must not decrease "
                              f"(previous {previous})")
