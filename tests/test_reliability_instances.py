@@ -165,6 +165,24 @@ def test_item6_item8_compare_slot_checked_before_workers(capsys, files, tmp_path
     one_line_error(capsys, "solve", files["items"], "--method", "bb", "--slot", "2", field="--slot")
 
 
+@pytest.mark.parametrize("label, message", [
+    ("ilp/gurobi", "backend 'gurobi' is not one of cbc, highs, cpsat, scip"),
+    ("ilp/", "method 'ilp/': an empty part"),
+    ("lp/nosuch", "backend 'nosuch' is not one of"),
+    ("slope/highs", "method 'slope/highs': slope does not use a backend ('highs')"),
+    ("exact/gap", "method 'exact/gap': exact does not use a form ('gap')"),
+    ("ilp/highs/cbc", "method 'ilp/highs/cbc': gives a backend or a form twice"),
+    ("rolling:fptas:0", "EPS = 0.0 must be in (0, 1)"),
+])
+def test_compare_refuses_a_method_label_it_would_run_otherwise(capsys, files, tmp_path, label, message):
+    # Regression: unknown backends became 'declined' rows (exit 0), a backend given to a heuristic
+    # was dropped in silence, and a bad parameter was called an unknown method.
+    err = one_line_error(capsys, "compare", files["json"], "--methods", f"bb,{label}", "--out", tmp_path / "c",
+                         field="")
+    assert message in err
+    assert not (tmp_path / "c" / "compare.jsonl").exists()
+
+
 # -- item 7: hangs and unbounded reads ---------------------------------------------------------------
 
 def run_with_timeout(fn, *args, seconds: float = 20):

@@ -327,6 +327,35 @@ def split_method(label: str) -> tuple[str, dict[str, Any]]:
     return parts[0], kwargs
 
 
+def check_label(label: str) -> None:
+    """Refuse a method label ``NAME[/BACKEND][/FORM]`` a user gave, saying why.
+
+    Raises
+    ------
+    SolveError
+        An empty part, an unknown or malformed method (with the method's own reason, e.g.
+        ``EPS = 0.0 ...``), an unknown backend, two backends or two forms, or a backend or form given
+        to a method that does not use it (it would be dropped in silence).
+    """
+    from l3gs_opt.methods import resolve_method
+    from l3gs_opt.models.backends import Backend
+    from l3gs_opt.solvers.registry import entry
+
+    parts = label.split("/")
+    if "" in parts:
+        raise SolveError(f"method {label!r}: an empty part (expected NAME[/BACKEND][/FORM], e.g. ilp/highs/gap)")
+    name, kwargs = split_method(label)
+    resolve_method(name)
+    if len(kwargs) != len(parts) - 1:
+        raise SolveError(f"method {label!r}: gives a backend or a form twice")
+    if "backend" in kwargs:
+        Backend.parse(kwargs["backend"])
+    uses = entry(name).uses
+    for option, value in kwargs.items():
+        if option not in uses:
+            raise SolveError(f"method {label!r}: {name} does not use a {option} ({value!r})")
+
+
 def available(label: str) -> bool:
     """Whether ``solve`` knows the method of a label (solvers may not provide every method)."""
     from l3gs_opt.methods import resolve_method

@@ -118,14 +118,12 @@ def _csv(text: str | None, kind: type = str) -> list | None:
 
 def _check_methods(methods: list[str] | None) -> None:
     from l3gs_opt.bench.run import BenchError
-    from l3gs_opt.errors import SolveError
-    from l3gs_opt.bench.suites import available
+    from l3gs_opt.bench.suites import check_label
 
     if methods is not None and not methods:   # "--methods ," must not mean "every method"
         raise BenchError("--methods", "names no method (expected comma-separated labels, e.g. ilp/highs,bb)")
     for m in methods or []:
-        if not available(m):
-            raise SolveError(f"method {m!r} is unknown (see l3gs-opt solve --help for method names)")
+        check_label(m)
 
 
 def _check_bench_args(args: argparse.Namespace) -> list[int] | None:
