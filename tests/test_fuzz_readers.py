@@ -160,6 +160,21 @@ STAMP = st.one_of(st.datetimes().map(lambda d: d.strftime("%Y-%m-%d %H:%M:%S")),
                   st.sampled_from(["2024-13-40 25:61:61", "0000-01-01 00:00:00", "9999-12-31 23:59:59.999999"]))
 
 
+@pytest.mark.parametrize("position, rotation, field", [
+    ("nan, 1.5, 0.0", "0, 0, 0", r"Head Position\[0\] = nan"),
+    ("0.1, -inf, 0.0", "0, 0, 0", r"Head Position\[1\] = -inf"),
+    ("0.1, 1.5, 0.0", "10, Infinity, 0", r"Head Rotation\[1\] = inf"),
+])
+def test_a_non_finite_pose_is_refused_by_line_not_skipped(tmp_path, position, rotation, field):
+    # Regression: the number pattern did not match nan/inf, so such a line was skipped with a warning.
+    good = POSE_LINE.format(0.1, 1.5, 0.0, 10, 0, 0, stamp="2024-06-20 16:13:20")
+    bad = POSE_LINE.format(*position.split(", "), *rotation.split(", "), stamp="2024-06-20 16:13:21")
+    path = tmp_path / "p.log"
+    path.write_text("\n".join([good, good, bad, good]) + "\n")
+    with pytest.raises(PoseError, match=rf"p\.log: line 3: {field}: must be finite"):
+        read_pose_log(path)
+
+
 @FUZZ
 @given(data=st.data())
 def test_fuzz_pose_log_reader_mutated(folder, pose_seed, data):

@@ -94,7 +94,8 @@ class PoseTrace:
         return np.concatenate([self.position, self.rotation_deg], axis=1)
 
 
-_NUM = r"(-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?)"
+# nan and inf are matched so that such a line is refused by name (below), not skipped as no pose.
+_NUM = r"(-?(?:\d+(?:\.\d*)?(?:[eE][-+]?\d+)?|(?i:nan|inf(?:inity)?)))"
 _TRIPLE = rf"\(\s*{_NUM}\s*,\s*{_NUM}\s*,\s*{_NUM}\s*\)"
 _LINE = re.compile(rf"^\s*(\d{{4}}-\d\d-\d\d \d\d:\d\d:\d\d(?:\.\d+)?)\s*,\s*Head Position:\s*{_TRIPLE}\s*,"
                    rf"\s*Head Rotation:\s*{_TRIPLE}")
