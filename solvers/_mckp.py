@@ -1055,13 +1055,16 @@ def fptas(table: OptionTable, eps: float, *, max_cells: int = MAX_DP_CELLS) -> M
         return MckpResult(out, value, max(bound, value), False, {"rows": n_all, "open_rows": 0})
     ok = red.allowed[rows, :K]
     k = eps * z0 / n
-    profit = np.where(ok, np.floor(table.value[rows] / k), 0).astype(np.int64)
-    top = int(math.floor(max(lp.value - P0, 0.0) * (1 + BOUND_SLACK) / k)) + 1
-    top = min(top, int(profit.max(axis=1).sum()))
+    # Sized in floats, and cast only once the table is known to fit: a tiny eps makes the scaled
+    # profits overflow int64 (the cast would give garbage, not an error).
+    scaled = np.where(ok, np.floor(table.value[rows] / k), 0.0)
+    top_f = float(min(np.floor(max(lp.value - P0, 0.0) * (1 + BOUND_SLACK) / k) + 1.0, scaled.max(axis=1).sum()))
+    if not n * (top_f + 1.0) <= max_cells:
+        raise SolveError(f"fptas: the table would have {n} rows x {top_f + 1:.6g} profit units = "
+                         f"{n * (top_f + 1):.6g} cells, more than the limit of {max_cells}; use a larger eps or bb")
+    profit = scaled.astype(np.int64)
+    top = int(top_f)
     cells = n * (top + 1)
-    if cells > max_cells:
-        raise SolveError(f"fptas: the table would have {n} rows x {top + 1} profit units = {cells} cells, "
-                         f"more than the limit of {max_cells}; use a larger eps or bb")
     sentinel = budget + 1
     least = np.full(top + 1, sentinel, dtype=np.int64)
     least[0] = 0

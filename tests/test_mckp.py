@@ -6,6 +6,8 @@ solvers must agree to ``rtol=1e-9`` (``GAP_TOL``, the gap that counts as proven 
 
 from __future__ import annotations
 
+import re
+import warnings
 from unittest import mock
 
 import numpy as np
@@ -173,6 +175,27 @@ def test_greedy_feasible_with_valid_bound(seed: int, family: str) -> None:
     constant = slot_table(inst, 0)[1]
     # LP-greedy with the break option tried alone: at least half the LP value.
     assert sol.objective - constant >= 0.5 * (sol.bound - constant) * (1 - 1e-9) - 1e-300
+
+
+@SETTINGS
+@given(seed=st.integers(0, 10**6), family=st.sampled_from(("random", "ties", "held", "huge")),
+       eps=st.sampled_from((1e-300, 1e-100, 1e-30, 1e-12)))
+def test_fptas_with_a_tiny_eps_keeps_its_guarantee_or_refuses(seed: int, family: str, eps: float) -> None:
+    # Regression: scaled profits beyond int64 were cast to garbage, and the answer fell below the
+    # guarantee (rolling:fptas:1e-300 scored below rolling:fptas:0.1), with only numpy's warning.
+    inst = mckp_instance(seed, family, J=4, L=3)
+    opt = solve_brute_force(inst, slot=0).objective
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            sol = solve_fptas(inst, eps)
+        except SolveError as exc:
+            assert re.match(r"fptas: the table would have \d+ rows x .* cells, more than the limit", str(exc))
+            return
+    constant = slot_table(inst, 0)[1]
+    assert is_feasible(inst, sol.arrivals, slot=0)
+    assert sol.objective - constant >= (1 - eps) * (opt - constant) - 1e-9 * max(1.0, opt)
+    assert sol.bound >= opt * (1 - 1e-12)
 
 
 def test_fptas_rejects_bad_eps() -> None:
