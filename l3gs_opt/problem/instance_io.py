@@ -62,6 +62,7 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
     themselves (no flat copy of the entries).
     """
     shape: list[int | None] = [None] * len(dims)
+    first_at: list[tuple[int, ...]] = [()] * len(dims)   # the list that set each length
     last = len(dims) - 1
     found = {"float": False, "fraction": False}
 
@@ -71,9 +72,13 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
         if pairs and depth == 1 and len(v) != 2:
             raise error(name, f"must be a [parent, child] pair, got {len(v)} entries", idx)
         if shape[depth] is None:
-            shape[depth] = len(v)
+            shape[depth], first_at[depth] = len(v), idx
         elif len(v) != shape[depth]:
-            raise error(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)}", idx)
+            # The first list of a level sets its length; naming it shows which of the two is short
+            # when that first one is the odd one out.
+            where = "".join(f"[{i}]" for i in first_at[depth])
+            raise error(name, f"expected {shape[depth]} entries ({dims[depth]}), got {len(v)} "
+                              f"({name}{where} has {shape[depth]})", idx)
 
     def leaf(v: Any, idx: tuple[int, ...]) -> None:
         if type(v) is bool or not isinstance(v, (int, float)):
