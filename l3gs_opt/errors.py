@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["L3gsError", "InstanceError", "SolveError", "BackendUnavailableError"]
+__all__ = ["L3gsError", "InstanceError", "SolveError", "BackendUnavailableError", "os_error_reason"]
 
 
 class L3gsError(Exception):
@@ -35,3 +35,9 @@ class SolveError(L3gsError, ValueError):
 
 class BackendUnavailableError(L3gsError, RuntimeError):
     """The chosen backend's library is not installed."""
+
+
+def os_error_reason(exc: OSError) -> str:
+    """Why a file operation failed, in words: the system's text, except that ``File exists`` from
+    ``mkdir(exist_ok=True)``, its only source here, means a file stands where a folder is needed."""
+    return "a file where a folder is needed" if isinstance(exc, FileExistsError) else exc.strerror or str(exc)

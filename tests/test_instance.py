@@ -122,6 +122,14 @@ def test_unreadable_files_are_instance_errors(tmp_path):
         load_instance(tmp_path / "missing.json")
 
 
+@pytest.mark.parametrize("suffix", [".json", ".npz"])
+def test_saving_under_a_file_says_so(tmp_path, suffix):
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(InstanceError, match=r"^file: .*afile/i\.(json|npz): cannot be written \(a file where a "
+                                            r"folder is needed\)$"):
+        save_instance(instance_from_dict(base()), tmp_path / "afile" / f"i{suffix}")
+
+
 def test_an_integer_python_will_not_convert_is_one_named_error(tmp_path):
     # Python's json raises a bare ValueError (not a decoding error) past 4300 digits.
     digits = "9" * 5000

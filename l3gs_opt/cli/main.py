@@ -413,9 +413,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def os_error_line(exc: OSError) -> str:
     """``path: reason`` of an OSError (both paths of a rename), or its text when it names none."""
+    from l3gs_opt.errors import os_error_reason
+
     paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
-    # mkdir(exist_ok=True) raises "File exists" only for a file where a folder is to be made.
-    reason = "a file where a folder is needed" if isinstance(exc, FileExistsError) else exc.strerror or str(exc)
+    reason = os_error_reason(exc)
     return f"{' -> '.join(paths)}: {reason}" if paths else reason
 
 

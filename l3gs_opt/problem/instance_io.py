@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from l3gs_opt.errors import InstanceError
+from l3gs_opt.errors import InstanceError, os_error_reason
 from l3gs_opt.input_files import key_name, load_npz, npz_text, parse_json, read_json
 from l3gs_opt.problem.instance import SCHEMA, Instance, Options
 
@@ -249,7 +249,7 @@ def write_problem_file(path: str | os.PathLike[str], data: Mapping[str, Any], ar
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(text, encoding="utf-8")
     except OSError as exc:
-        raise error("file", f"{path}: cannot be written ({exc.strerror or exc})") from None
+        raise error("file", f"{path}: cannot be written ({os_error_reason(exc)})") from None
     return path
 
 
