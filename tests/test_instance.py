@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -120,6 +121,21 @@ def test_unreadable_files_are_instance_errors(tmp_path):
         load_instance(tmp_path / "bad.npz")
     with pytest.raises(InstanceError, match=r"^file: .*no such file"):
         load_instance(tmp_path / "missing.json")
+
+
+@pytest.mark.skipif(np.finfo(np.longdouble).max <= np.finfo(np.float64).max,
+                    reason="this platform's long double has float64's range")
+def test_a_long_double_beyond_float64_is_one_error_and_no_warning(tmp_path):
+    data = {**base()}
+    utility = np.asarray(data.pop("utility"), dtype=np.longdouble)
+    utility[0, 1, 0] = np.longdouble("1e4000")
+    np.savez(tmp_path / "i.npz", **{k: np.array(json.dumps(v)) for k, v in data.items()
+                                     if k not in ("bandwidth", "cost")},
+             bandwidth=np.asarray(data["bandwidth"]), cost=np.asarray(data["cost"]), utility=utility)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # numpy's cast warning was a second line before the error
+        with pytest.raises(InstanceError, match=r"^utility\[0\]\[1\]\[0\] = inf: must be finite"):
+            load_instance(tmp_path / "i.npz")
 
 
 @pytest.mark.parametrize("suffix", [".json", ".npz"])

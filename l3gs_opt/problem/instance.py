@@ -231,7 +231,8 @@ def checked_utility_values(arr: np.ndarray, error: type[InstanceError], *, signe
     float64 (with signs, a sum of positive terms alone must stay finite too). Faults are
     ``error("utility", ...)`` naming the first index at fault; ``why`` is appended to the
     message of a negative value."""
-    out = arr.astype(np.float64)
+    with np.errstate(over="ignore"):   # a long double beyond float64 becomes inf, named just below
+        out = arr.astype(np.float64)
     bad = ~np.isfinite(out)
     if bad.any():
         idx = _first_index(bad)
