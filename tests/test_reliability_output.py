@@ -566,3 +566,13 @@ def test_os_error_line_names_the_paths():
     assert os_error_line(FileExistsError(17, "File exists", "out/a")) == "out/a: a file where a folder is needed"
     assert os_error_line(PermissionError(13, "Permission denied", "a", None, "b")) == "a -> b: Permission denied"
     assert os_error_line(OSError("no path")) == "no path"
+
+
+def test_report_of_an_empty_records_file_is_an_error(tmp_path, capsys):
+    path = tmp_path / "r.jsonl"
+    path.write_text("\n")
+    code, _, err = run_cli(capsys, "report", path, "--out", tmp_path / "rep")
+    assert code == 2
+    assert one_error_line(err) == (f"error: {path}: holds no records (expected the results.jsonl of l3gs-opt "
+                                   "bench or compare)")
+    assert not (tmp_path / "rep").exists()

@@ -172,9 +172,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from l3gs_opt.errors import SolveError
     from l3gs_opt.bench.report import write_report
+    from l3gs_opt.records import read_records
 
     if not Path(args.records).exists():
         raise SolveError(f"{args.records}: no such results file")
+    if not read_records(args.records):   # a report of nothing is a wrong path, not a result
+        raise SolveError(f"{args.records}: holds no records (expected the results.jsonl of l3gs-opt bench or compare)")
     print(f"report: {write_report(args.records, args.out)}")
     return 0
 
