@@ -75,8 +75,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
     size = parse_image_size(args.size, field="--size") if args.size is not None else None
     scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
     cams = load_any_cameras(args.camera, size=size)
-    if not -len(cams) <= args.index < len(cams):
-        raise CameraError(f"--index: {args.index} out of range ({args.camera} holds {len(cams)} cameras)")
+    # no Python negative indexing: --index -1 silently rendering the last camera hides a typo
+    if not 0 <= args.index < len(cams):
+        raise CameraError(f"--index: {args.index} out of range ({args.camera} holds {len(cams)} cameras, "
+                          f"indices 0..{len(cams) - 1})")
     cam = cams[args.index]
     if args.background is not None:
         cam = cam.replace(background=args.background)
@@ -91,11 +93,17 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 def _cmd_scene_make(args: argparse.Namespace) -> int:
     from l3gs_opt.scene.camera_paths import orbit_path, walk_path
-    from l3gs_opt.scene.cameras import save_cameras
+    from l3gs_opt.scene.cameras import check_background, save_cameras
+    from l3gs_opt.scene.scene_files import scene_format
     from l3gs_opt.scene.splats import write_ply
     from l3gs_opt.scene.procedural import make_scene
 
-    bg = args.background if args.background is not None else (0.0, 0.0, 0.0)
+    # only the reference PLY keeps the object ids; another suffix (m.txt) would give a PLY that
+    # read_scene and 'scene convert' later refuse by its name
+    if scene_format(args.out).extension != ".ply":
+        raise OutputError(f"--out: {Path(args.out).name} must end in .ply (scene make writes the reference PLY)")
+    # the check render --background uses, also when no camera path is written
+    bg = check_background(args.background, "--background") if args.background is not None else (0.0, 0.0, 0.0)
     kw = dict(width=args.width, height=args.height, fov_x_deg=args.fov, background=bg)
     # the camera paths first: a bad size or background fails before any file is written
     paths = [(kind, make(args.views, **kw), out) for kind, make, out in (("orbit", orbit_path, args.orbit),
@@ -124,7 +132,9 @@ def _cmd_scene_info(args: argparse.Namespace) -> int:
     if scene.num_splats:
         info["bbox_min"] = scene.means.min(0).round(4).tolist()
         info["bbox_max"] = scene.means.max(0).round(4).tolist()
-        info["mean_opacity"] = round(float(np.mean(1 / (1 + np.exp(-scene.opacity_logits.astype(np.float64))))), 4)
+        # the sigmoid as 0.5 (1 + tanh(x / 2)): 1 / (1 + exp(-x)) overflows (a warning) for logits below -709
+        logits = scene.opacity_logits.astype(np.float64)
+        info["mean_opacity"] = round(float(np.mean(0.5 * (1 + np.tanh(0.5 * logits)))), 4)
         info["median_scale"] = round(float(np.median(np.exp(scene.log_scales.max(1).astype(np.float64)))), 5)
     if scene.object_ids is not None:
         ids, counts = np.unique(scene.object_ids, return_counts=True)
@@ -176,9 +186,10 @@ def _identity_features(path):
 
 
 def _cmd_scene_segment(args: argparse.Namespace) -> int:
-    from l3gs_opt.scene.scene_files import read_scene, write_scene
+    from l3gs_opt.scene.scene_files import read_scene, scene_format, write_scene
     from l3gs_opt.scene.segment import object_counts, segment_scene
 
+    scene_format(args.out)   # an unknown output extension fails before the segmentation runs
     scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
     features = _identity_features(args.scene)
     t0 = time.perf_counter()
@@ -254,7 +265,8 @@ def register(subparsers) -> None:
     p.add_argument("--camera", required=True,
                    help="camera JSON (object or list), NeRF/Blender transforms.json, or COLMAP sparse folder")
     p.add_argument("--out", required=True, help="output image: .png (8-bit) or .npy (float32 HxWx3, unclipped)")
-    p.add_argument("--index", type=int, default=0, help="camera index when the file holds several (default 0)")
+    p.add_argument("--index", type=int, default=0,
+                   help="camera index 0..count-1 when the file holds several (default 0)")
     p.add_argument("--size", metavar="WxH", default=None,
                    help="image size in pixels, e.g. 800x800: needed for NeRF-synthetic transforms.json files, "
                         "which have camera_angle_x but no w/h; a camera file with its own size is rescaled "
@@ -270,14 +282,14 @@ def register(subparsers) -> None:
     s = subparsers.add_parser("scene", help="make or inspect splat scenes")
     ssub = s.add_subparsers(dest="scene_command", required=True)
     m = ssub.add_parser("make", help="build a procedural multi-object room scene (+ camera paths)")
-    m.add_argument("--out", required=True, help="output PLY file")
+    m.add_argument("--out", required=True, help="output PLY file (.ply)")
     m.add_argument("--splats", type=int, default=100_000, help="number of splats (default 100000; 1000..2000000)")
     m.add_argument("--objects", type=int, default=5, help="objects on the floor (1..12, default 5)")
     m.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=3, help="SH degree (default 3)")
     m.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     m.add_argument("--orbit", help="also write an orbit camera path (camera JSON list) here")
     m.add_argument("--walk", help="also write a walk-through camera path (camera JSON list) here")
-    m.add_argument("--views", type=int, default=36, help="cameras per path (default 36)")
+    m.add_argument("--views", type=int, default=36, help="cameras per path (default 36; 1..10000)")
     m.add_argument("--width", type=int, default=800, help="image width of the path cameras (default 800)")
     m.add_argument("--height", type=int, default=600, help="image height of the path cameras (default 600)")
     m.add_argument("--fov", type=float, default=70.0, help="horizontal field of view in degrees (default 70)")

@@ -13,7 +13,22 @@ import numpy as np
 from l3gs_opt.scene.cameras import Camera, CameraError, look_at
 from l3gs_opt.scene.procedural import ROOM_HALF, ROOM_HEIGHT
 
-__all__ = ["intrinsics_from_fov", "orbit_path", "walk_path"]
+__all__ = ["intrinsics_from_fov", "orbit_path", "walk_path", "MAX_PATH_VIEWS"]
+
+#: Most cameras in one path. A path is saved as a camera JSON list (~580 bytes a camera), which
+#: :func:`l3gs_opt.scene.cameras.load_cameras` reads back only up to ``MAX_CAMERA_FILE_BYTES``
+#: (64 MiB, ~115,000 cameras); 10,000 (5.5 minutes at 30 frames/s, a few seconds to build) is far
+#: more than any walk-through needs and keeps the file readable. ``--views 100000000`` would
+#: otherwise build cameras for hours before failing.
+MAX_PATH_VIEWS = 10_000
+
+
+def _check_views(n_views) -> int:
+    """``n_views`` as an int in ``[1, MAX_PATH_VIEWS]``, checked before any camera is built."""
+    if isinstance(n_views, bool) or not isinstance(n_views, (int, np.integer)) or \
+            not 1 <= n_views <= MAX_PATH_VIEWS:
+        raise CameraError(f"n_views: {n_views!r} must be an integer in [1, {MAX_PATH_VIEWS:,}] (MAX_PATH_VIEWS)")
+    return int(n_views)
 
 
 def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> dict:
@@ -38,7 +53,7 @@ def orbit_path(n_views: int = 36, *, width: int = 800, height: int = 600, fov_x_
     Parameters
     ----------
     n_views : int
-        Number of cameras, evenly spaced in angle (the first at +x).
+        Number of cameras, 1..:data:`MAX_PATH_VIEWS`, evenly spaced in angle (the first at +x).
     width, height : int, keyword-only
         Image size in pixels.
     fov_x_deg : float, keyword-only
@@ -48,8 +63,7 @@ def orbit_path(n_views: int = 36, *, width: int = 800, height: int = 600, fov_x_
     target : array_like, shape [3], keyword-only
         Look-at point (metres).
     """
-    if n_views < 1:
-        raise CameraError(f"n_views: {n_views} must be >= 1")
+    n_views = _check_views(n_views)
     k = intrinsics_from_fov(width, height, fov_x_deg)
     cams = []
     for i in range(n_views):
@@ -67,9 +81,9 @@ def walk_path(n_views: int = 36, *, width: int = 800, height: int = 600, fov_x_d
     The walker moves counter-clockwise on an ellipse of half-axes ``0.85 ROOM_HALF`` and
     ``0.7 ROOM_HALF``; the gaze leads the position by 50 degrees and bends towards the centre, so
     objects enter, cross and leave the view (what a viewport predictor sees in a walk-through).
+    ``n_views`` is 1..:data:`MAX_PATH_VIEWS`.
     """
-    if n_views < 1:
-        raise CameraError(f"n_views: {n_views} must be >= 1")
+    n_views = _check_views(n_views)
     k = intrinsics_from_fov(width, height, fov_x_deg)
     ax, ay = 0.85 * ROOM_HALF, 0.7 * ROOM_HALF
     cams = []

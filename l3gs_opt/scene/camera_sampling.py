@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from l3gs_opt.scene.camera_paths import intrinsics_from_fov
+from l3gs_opt.scene.camera_paths import MAX_PATH_VIEWS, intrinsics_from_fov
 from l3gs_opt.scene.cameras import Camera, CameraError, look_at
 from l3gs_opt.scene.segment import BACKGROUND_FACTOR
 from l3gs_opt.scene.splats import SplatScene
@@ -64,7 +64,8 @@ def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside",
     ----------
     scene : SplatScene
     count : int
-        Number of cameras, >= 1.
+        Number of cameras, 1..:data:`l3gs_opt.scene.camera_paths.MAX_PATH_VIEWS` (each is
+        rendered and trained on; the limit also keeps ``--views 100000000`` from running for hours).
     mode : {"outside", "inside", "orbit"}, keyword-only
     width, height : int, keyword-only
         Image size in pixels.
@@ -75,6 +76,7 @@ def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside",
     up : array_like [3], keyword-only
         ``orbit``: the ring's axis.
     seed : int, keyword-only
+        ``inside``: seed of the positions, >= 0.
     background : RGB triple, keyword-only
 
     Returns
@@ -89,8 +91,10 @@ def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside",
     """
     if mode not in CAMERA_MODES:
         raise CameraError(f"mode: {mode!r} must be one of {', '.join(CAMERA_MODES)}")
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
-        raise CameraError(f"count: {count!r} must be a positive integer")
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 1 <= count <= MAX_PATH_VIEWS:
+        raise CameraError(f"count: {count!r} must be an integer in [1, {MAX_PATH_VIEWS:,}] (MAX_PATH_VIEWS)")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:  # as splats.check_seed
+        raise CameraError(f"seed = {seed!r}: must be an integer >= 0")
     if not (isinstance(distance, (int, float)) and math.isfinite(distance) and distance > 0):
         raise CameraError(f"distance: {distance!r} must be a positive number")
     if scene.num_splats == 0:

@@ -39,7 +39,8 @@ ratio; the aspect ratio must stay, up to rounding).
 Every file is read through :mod:`l3gs_opt.input_files` (regular files only, sizes limited, strict
 JSON). A camera is refused by name before any image is allocated when its size exceeds
 :data:`MAX_IMAGE_SIDE` pixels a side or :data:`MAX_IMAGE_PIXELS` in all, its focal length
-:data:`MAX_FOCAL_PX`, or a background channel leaves [0, 1].
+:data:`MAX_FOCAL_PX`, its principal point lies more than :data:`MAX_PRINCIPAL_POINT_OUTSIDE` image
+sizes outside the image, a background channel leaves [0, 1], or its name is not text.
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ from l3gs_opt.traces.bandwidth import iter_lines
 __all__ = ["CameraError", "DistortionWarning", "Camera", "load_cameras", "load_camera", "load_any_cameras",
            "save_cameras", "camera_to_dict", "camera_from_dict", "read_colmap", "write_colmap",
            "read_blender", "write_blender", "look_at", "parse_image_size", "max_distortion_px",
-           "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX", "MAX_DROPPED_DISTORTION_PX"]
+           "check_background", "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX", "MAX_PRINCIPAL_POINT_OUTSIDE",
+           "MAX_DROPPED_DISTORTION_PX"]
 
 #: Longest image side (pixels). Renders are allocated per pixel; 16k covers every real sensor.
 MAX_IMAGE_SIDE = 16384
@@ -73,6 +75,13 @@ MAX_IMAGE_PIXELS = 2**25
 #: Largest focal length (pixels): a 0.0001 degree field of view at 16k pixels. Larger ones overflow
 #: the renderer's float32 screen-space covariances (fx^2 Sigma / z^2) and training turns them into NaN.
 MAX_FOCAL_PX = 1e9
+#: How far outside the image the principal point may lie, in image sizes: ``cx`` in
+#: ``[-W, 2 W]``, ``cy`` in ``[-H, 2 H]``. Real calibrations put it within a few per cent of the
+#: centre, and a crop moves it at most about an image away; the renderer clamps x/z and y/z to
+#: 1.3 tan(fov / 2) about the optical axis (the 3DGS Jacobian clamp), so already at this distance
+#: every pixel lies beyond the clamp. Further out is a unit or typing mistake (``cx = 1e20``
+#: renders an empty image without complaint).
+MAX_PRINCIPAL_POINT_OUTSIDE = 1.0
 
 #: Tolerance on ``R R^T = I`` for the rotation block of ``world_to_camera`` (file formats store
 #: rotations in float32 or as rounded decimals; a true scale or shear is far larger).
@@ -129,6 +138,29 @@ def _check_size(width: Any, height: Any, field: str) -> tuple[int, int]:
     return out[0], out[1]
 
 
+def check_background(value: Any, field: str = "background") -> np.ndarray:
+    """``value`` as an RGB triple, float64 ``[3]``, each channel in [0, 1]; the one check of every
+    background (a camera's, ``render --background``, ``scene make --background``).
+
+    Raises
+    ------
+    CameraError
+        ``background[0]: 2.0 must be in [0, 1] (r, g, b)``, or naming ``field`` for a value that is
+        not 3 numbers.
+    """
+    try:
+        bg = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError(f"{field}: {value!r} must be 3 numbers in [0, 1]") from None
+    if bg.shape != (3,):
+        raise CameraError(f"{field}: {bg.tolist()} must be 3 numbers in [0, 1]")
+    bad = ~((bg >= 0) & (bg <= 1))
+    if bad.any():
+        c = int(np.argmax(bad))
+        raise CameraError(f"{field}[{c}]: {bg[c]} must be in [0, 1] (r, g, b)")
+    return bg
+
+
 def _optional_size(width: Any, height: Any) -> Optional[tuple[int, int]]:
     """The ``width=``/``height=`` options of the loaders: both or neither."""
     if width is None and height is None:
@@ -171,21 +203,24 @@ class Camera:
     fx, fy : float
         Focal lengths in pixels (> 0).
     cx, cy : float
-        Principal point in pixels (pixel ``(i, j)`` is sampled at ``(i + 0.5, j + 0.5)``).
+        Principal point in pixels (pixel ``(i, j)`` is sampled at ``(i + 0.5, j + 0.5)``), within
+        ``[-W, 2 W]`` x ``[-H, 2 H]`` (:data:`MAX_PRINCIPAL_POINT_OUTSIDE`).
     world_to_camera : ndarray, shape [4, 4], float64
         Rigid transform ``[[R, t], [0, 0, 0, 1]]``; ``R`` must be a rotation (tolerance
         :data:`ROTATION_TOL`).
     background : ndarray, shape [3], float64
         Background colour in [0, 1] (default black).
     name : str
-        Optional label (image name for COLMAP/Blender cameras).
+        Optional label (image name for COLMAP/Blender cameras); must be text.
 
     Raises
     ------
     CameraError
         On a non-positive or too large size (:data:`MAX_IMAGE_SIDE`, :data:`MAX_IMAGE_PIXELS`), a
-        non-positive or too large focal length (:data:`MAX_FOCAL_PX`), a non-finite value, a
-        matrix that is not rigid, or a background channel outside [0, 1].
+        non-positive or too large focal length (:data:`MAX_FOCAL_PX`), a principal point more
+        than :data:`MAX_PRINCIPAL_POINT_OUTSIDE` image sizes outside the image, a non-finite
+        value, a matrix that is not rigid, a background channel outside [0, 1], or a name that
+        is not text.
     """
 
     width: int
@@ -219,6 +254,13 @@ class Camera:
                 raise CameraError(f"{key}: {v} is not finite")
             if key in ("fx", "fy") and not 0 < v <= MAX_FOCAL_PX:
                 raise CameraError(f"{key}: {v} must be > 0 and <= {MAX_FOCAL_PX:g} pixels (MAX_FOCAL_PX)")
+            if key in ("cx", "cy"):
+                side = self.width if key == "cx" else self.height
+                out = MAX_PRINCIPAL_POINT_OUTSIDE * side
+                if not -out <= v <= side + out:
+                    raise CameraError(f"{key}: {v:g} must be in [{-out:g}, {side + out:g}] pixels, at most "
+                                      f"{MAX_PRINCIPAL_POINT_OUTSIDE:g} image size outside the "
+                                      f"{self.width}x{self.height} image (MAX_PRINCIPAL_POINT_OUTSIDE)")
             set_(key, v)
         try:
             m = np.array(self.world_to_camera, dtype=np.float64)
@@ -238,18 +280,12 @@ class Camera:
                               f"(|R R^T - I| = {err:.2e}, det = {np.linalg.det(r):.4f})")
         m.setflags(write=False)
         set_("world_to_camera", m)
-        try:
-            bg = np.array(self.background, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise CameraError(f"background: {self.background!r} must be 3 numbers in [0, 1]") from None
-        if bg.shape != (3,):
-            raise CameraError(f"background: {bg.tolist()} must be 3 numbers in [0, 1]")
-        bad = ~((bg >= 0) & (bg <= 1))
-        if bad.any():
-            c = int(np.argmax(bad))
-            raise CameraError(f"background[{c}]: {bg[c]} must be in [0, 1] (r, g, b)")
+        bg = check_background(self.background)
         bg.setflags(write=False)
         set_("background", bg)
+        # str(5) would hide a misplaced number (``"name": 5`` in a camera JSON)
+        if not isinstance(self.name, str):
+            raise CameraError(f"name: {self.name!r} must be text")
         set_("name", str(self.name))
 
     @property

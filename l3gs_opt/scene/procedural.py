@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from l3gs_opt.scene.splats import SceneError, SplatScene
+from l3gs_opt.scene.splats import SceneError, SplatScene, check_seed
 
 __all__ = ["make_scene", "ROOM_HALF", "ROOM_HEIGHT", "OBJECT_DENSITY", "SHAPES", "MIN_SPLATS", "MAX_SPLATS", "ROOM_PARTS"]
 
@@ -217,7 +217,7 @@ def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 
     sh_degree : int, keyword-only
         0..3.  Degree 0 drops the view dependence.
     seed : int, keyword-only
-        Seed of every random choice (layout, colours, sampling).
+        Seed of every random choice (layout, colours, sampling), >= 0.
     room_parts : bool, keyword-only
         Give the room's six surfaces their own object ids (see the module docstring); the splats
         are identical either way.
@@ -239,7 +239,7 @@ def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 
         raise SceneError("objects", f"{objects!r}: must be an integer in [1, 12]")
     if sh_degree not in (0, 1, 2, 3):
         raise SceneError("sh_degree", f"{sh_degree!r}: must be 0, 1, 2 or 3")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed))
     # --- layout: objects on a ring around the centre, random size, colours, pattern
     specs = []
     ring = 1.9

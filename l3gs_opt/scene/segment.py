@@ -37,7 +37,7 @@ from typing import Union
 
 import numpy as np
 
-from l3gs_opt.scene.splats import SceneError, SplatScene
+from l3gs_opt.scene.splats import SceneError, SplatScene, check_seed
 
 __all__ = ["SAMPLE", "METHODS", "segment_scene", "segment_labels", "object_counts",
            "BACKGROUND_FACTOR", "MIN_PLANE_FRACTION", "MIN_COMPONENT_FRACTION", "MAX_AUTO_OBJECTS"]
@@ -246,6 +246,7 @@ def segment_labels(scene: SplatScene, objects: Union[int, str] = "auto", *, meth
     background : bool, keyword-only
         Split the far background off first.
     seed : int, keyword-only
+        Seed of the plane fits and k-means, >= 0.
     iterations : int, keyword-only
         Lloyd iterations of each k-means.
     features : ndarray [N, K], optional, keyword-only
@@ -264,6 +265,7 @@ def segment_labels(scene: SplatScene, objects: Union[int, str] = "auto", *, meth
         On an empty scene or an argument out of range (naming it).
     """
     _check(scene, objects, method, planes)
+    seed = check_seed(seed)
     pts = scene.means.astype(np.float64)
     n = len(pts)
     if features is not None:

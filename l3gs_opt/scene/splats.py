@@ -25,6 +25,7 @@ never an internal array.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from pathlib import Path
 from typing import NamedTuple, Optional
@@ -35,7 +36,7 @@ from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import MAX_BINARY_BYTES, check_regular_file
 
 __all__ = ["SceneError", "SplatScene", "read_ply", "write_ply", "read_identity_features", "sh_degree_from_coeffs",
-           "bytes_per_splat", "MIN_QUAT_NORM", "ply_property"]
+           "bytes_per_splat", "MIN_QUAT_NORM", "MAX_ABS_MEAN", "MAX_LOG_SCALE", "ply_property", "check_seed"]
 
 #: Smallest quaternion norm: the renderer normalises in float32, where the squares of smaller
 #: components underflow (a norm of 1e-25 renders a wrong rotation).
@@ -45,6 +46,16 @@ _MAX_PLY_HEADER = 1 << 20
 _PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
               "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: Largest |coordinate| of a splat centre (world units). Positions are float32 and so is what is
+#: computed from them: the camera transform sums three products, ``scene info`` rounds the bounding
+#: box by multiplying by 1e4 (inf above 3.4e34), a squared distance between two splats, 3 (2 M)^2,
+#: overflows above M = 5.3e18. 1e18 keeps all of these finite; real scenes span at most ~1e4 units.
+MAX_ABS_MEAN = 1e18
+#: Largest log-scale (natural log of a standard deviation, world units): a splat's covariance holds
+#: exp(2 s) in float32, which overflows above s = ln(float32 max) / 2 = 44.36. No lower bound: a
+#: very negative s underflows to a point splat, which the renderer's 0.3 px dilation still draws
+#: (trained files go down to about -25).
+MAX_LOG_SCALE = 0.5 * math.log(_FLOAT32_MAX)
 
 _BASE_PROPS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
                "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
@@ -73,7 +84,24 @@ class SceneError(L3gsError, ValueError):
         self.field = field
         self.index = tuple(int(i) for i in index) if index is not None else None
         where = field + "".join(f"[{i}]" for i in self.index or ())
-        super().__init__(f"{where}: {message}")
+        # "seed = -1: must be ..." (as InstanceError) reads better than "seed: = -1: ..."
+        sep = " " if message.startswith("= ") else ": "
+        super().__init__(f"{where}{sep}{message}")
+
+
+def check_seed(seed, field: str = "seed") -> int:
+    """``seed`` as an int after checking it is a whole number >= 0 (what
+    :func:`numpy.random.default_rng` takes), so that a negative one is refused by name rather
+    than deep inside numpy.
+
+    Raises
+    ------
+    SceneError
+        ``seed = -1: must be an integer >= 0`` (the wording of ``instance synth``).
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SceneError(field, f"= {seed!r}: must be an integer >= 0")
+    return int(seed)
 
 
 def sh_degree_from_coeffs(k: int) -> int:
@@ -107,6 +135,19 @@ def _check_finite(field: str, a: np.ndarray) -> None:
         raise SceneError(field, f"{a[idx]} is not finite", idx)
 
 
+def _check_float32_range(means: np.ndarray, log_scales: np.ndarray) -> None:
+    """Refuse finite values whose float32 arithmetic overflows (:data:`MAX_ABS_MEAN`,
+    :data:`MAX_LOG_SCALE`): they would render or report as inf, not fail."""
+    for field, a, bad, rule in (
+            ("means", means, np.abs(means) > MAX_ABS_MEAN,
+             f"|position| must be <= {MAX_ABS_MEAN:g} world units (MAX_ABS_MEAN): float32 arithmetic on it overflows"),
+            ("log_scales", log_scales, log_scales > MAX_LOG_SCALE,
+             f"must be <= {MAX_LOG_SCALE:.2f} (MAX_LOG_SCALE): exp(2 scale), the variance, overflows float32")):
+        if bad.any():
+            idx = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise SceneError(field, f"{float(a[idx]):g}: {rule}", idx)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class SplatScene:
     """An immutable, validated set of 3D Gaussian splats (reference 3DGS parameterisation).
@@ -135,8 +176,9 @@ class SplatScene:
     Raises
     ------
     SceneError
-        On a wrong shape, a non-finite value, a zero quaternion or a negative id/layer; the
-        message names the field and the index.
+        On a wrong shape, a non-finite value, a position beyond :data:`MAX_ABS_MEAN` or a
+        log-scale above :data:`MAX_LOG_SCALE` (float32 overflow), a zero quaternion or a negative
+        id/layer; the message names the field and the index.
     """
 
     means: np.ndarray
@@ -175,6 +217,7 @@ class SplatScene:
             _check_finite(name, a)
             a.setflags(write=False)
             set_(name, a)
+        _check_float32_range(self.means, self.log_scales)
         qn = np.linalg.norm(self.quats.astype(np.float64), axis=1)
         if n and (qn == 0).any():
             raise SceneError("quats", "zero quaternion", (int(np.argmin(qn)),))
@@ -333,7 +376,8 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
     SceneError
         If the file is missing, not a PLY, truncated or corrupt, lacks a required property,
         has an unknown one (unless ``ignore_unknown``), a gap in ``f_rest_*``, a coefficient
-        count that is not SH degree 0-3, or a non-finite value.
+        count that is not SH degree 0-3, a non-finite value, or a value whose float32 arithmetic
+        overflows (``x y z`` beyond :data:`MAX_ABS_MEAN`, ``scale_*`` above :data:`MAX_LOG_SCALE`).
     """
     path = check_regular_file(path, lambda f, m: SceneError(f, m), max_bytes=MAX_BINARY_BYTES)
     header = _check_ply_header(path)
