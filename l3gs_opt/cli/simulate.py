@@ -13,9 +13,8 @@ __all__ = ["register", "load_viewer_path", "PATH_FORMATS"]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from l3gs_opt.scene.bundle import read_bundle
     from l3gs_opt.traces.poses import PoseMapping
-    from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
+    from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING, read_delivery_bundle
     from l3gs_opt.simulator.simulation import SimConfig, Simulation, SimulationError, trace_bytes
 
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
@@ -35,16 +34,25 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     cache_dir = args.cache_dir
     if cache_dir is None and args.out and not args.no_cache:
         cache_dir = Path(args.out) / "reference-cache"
-    bundle = read_bundle(args.bundle)
+    bundle = read_delivery_bundle(args.bundle)   # as `bundle export` checks it
     bandwidth, info = trace_bytes(args.trace, mbps=args.mbps, start=args.start, slots=args.slots,
                                   slot_s=args.slot_s, format=args.trace_format)
     mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
     poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=args.path_rate, eye=args.eye)
     reference = args.teacher
-    if reference is None:   # the teacher the bundle was built from, when it is still there
+    if reference is None:   # the teacher the bundle was built from
+        from l3gs_opt.pipeline.build import IN_MEMORY_TEACHER
+
         recorded = bundle.manifest.get("build", {}).get("teacher")
-        if recorded and Path(recorded).is_file():
-            reference = recorded
+        if recorded == IN_MEMORY_TEACHER:   # built from a scene in memory: no file was ever recorded
+            recorded = None
+        if recorded and not Path(recorded).is_file():
+            # Not the largest model instead: scoring the bundle against itself reports SSIM 1.000 for a
+            # full delivery, a result that looks real. The largest model is only for bundles that
+            # record no teacher (procedural ones).
+            raise SimulationError("build.teacher", f"{recorded}: the bundle's recorded teacher is missing; "
+                                                   "pass --teacher PLY (the scene to score against)")
+        reference = recorded or None
     sim = Simulation(bundle, poses, bandwidth, config=config, reference=reference, mapping=mapping, info=info,
                      cache_dir=None if args.no_cache else cache_dir)
     result = sim.run(args.method, solver=args.solver, out_dir=args.out, progress=not args.no_progress,
@@ -158,7 +166,8 @@ def register(subparsers) -> None:
                    help="the utility per predicted viewpoint, or a viewpoint table built first (held-free utilities)")
     p.add_argument("--samples-per-slot", type=int, default=2, help="predicted viewpoints averaged per slot")
     p.add_argument("--teacher", default=None,
-                   help="reference scene (PLY); default: the bundle's recorded teacher, else its largest model")
+                   help="reference scene (PLY); default: the bundle's recorded teacher (an error if that file is "
+                        "missing), else, when none is recorded, its largest model")
     p.add_argument("--up", default="z", choices=["y", "z"], help="the scene's up axis (pose logs are y up)")
     p.add_argument("--width", type=int, default=160, help="rendered width in pixels (default 160)")
     p.add_argument("--height", type=int, default=120, help="rendered height in pixels (default 120)")

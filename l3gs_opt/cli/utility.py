@@ -62,16 +62,19 @@ def _cmd_check(args: argparse.Namespace) -> int:
         from l3gs_opt.pipeline.fidelity import FidelityError
 
         raise FidelityError(f"--out {out}: is a file, not a folder")
-    bar = tqdm(desc="fidelity", unit="sample", disable=args.no_progress)
+    bar = None   # made at the first sample: an argument refused before it leaves one error line, no bar
 
     def progress(i: int, n: int) -> None:
-        bar.total = n
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(desc="fidelity", unit="sample", total=n, disable=args.no_progress)
         bar.update(i - bar.n)
 
     report = utility_fidelity(args.bundle, args.path, utilities=names, samples=args.samples, slots=args.slots,
                               samples_per_slot=args.samples_per_slot, width=args.width, height=args.height,
                               fov_deg=args.fov, seed=args.seed, up=args.up, progress=progress)
-    bar.close()
+    if bar is not None:
+        bar.close()
     out.mkdir(parents=True, exist_ok=True)
     (out / "fidelity.json").write_text(dumps(report.to_dict(), indent=1, where="fidelity") + "\n")
     plot = plot_fidelity(report, out / "fidelity.png")

@@ -98,16 +98,41 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _check_record(r: dict, i: int) -> None:
-    """Refuse a record the page cannot show (``i``: its 1-based number in slots.jsonl)."""
+def _summary_limits(summary: dict | None) -> tuple[int, tuple[int, ...] | None]:
+    """The slots a run's records may number (``[0, limit)``) and its chunk grid, from its summary:
+    its ``slots`` and ``units``; without one (an interrupted run), the longest trace a simulation
+    reads and no grid (the labels then define it)."""
+    from l3gs_opt.traces.bandwidth import MAX_TRACE_SAMPLES
+
+    s = summary or {}
+    slots = s.get("slots")
+    limit = slots if isinstance(slots, int) and not isinstance(slots, bool) and 0 < slots <= MAX_TRACE_SAMPLES \
+        else MAX_TRACE_SAMPLES
+    units = s.get("units")
+    ok = isinstance(units, list) and 2 <= len(units) <= 3 and all(
+        isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in units)
+    return limit, tuple(units) if ok else None
+
+
+def _check_record(r: dict, i: int, summary: dict | None = None) -> None:
+    """Refuse a record the page cannot show (``i``: its 1-based number in slots.jsonl), against its
+    run's ``summary`` when there is one (its slot count and chunk grid)."""
     if not isinstance(r.get("method"), str) or not r["method"]:
         raise ReplayError("method", "missing or not a name", i)
+    limit, units = _summary_limits(summary)
     slot = r.get("slot")
     if not isinstance(slot, int) or isinstance(slot, bool) or slot < 0:
         raise ReplayError("slot", f"{slot!r} must be an integer >= 0", i)
+    # The page draws every slot up to the largest: a slot no run could have would hang it.
+    if slot >= limit:
+        raise ReplayError("slot", f"{slot} must be below {limit} (the run's "
+                                  f"{'slots' if summary and summary.get('slots') == limit else 'longest trace'})", i)
     for field in ("ssim", "psnr"):
         if r.get(field) is not None and not _is_number(r[field]):
             raise ReplayError(field, f"{r[field]!r} must be a number or null", i)
+    # SSIM is at most 1 (a picture equal to the reference) and at least -1.
+    if r.get("ssim") is not None and not -1.0 <= r["ssim"] <= 1.0:
+        raise ReplayError("ssim", f"{r['ssim']!r} must be in [-1, 1]", i)
     for field in ("bytes_delivered", "bytes_trace"):
         if not _is_number(r.get(field)) or r[field] < 0:
             raise ReplayError(field, f"{r.get(field)!r} must be a number of bytes >= 0", i)
@@ -119,6 +144,10 @@ def _check_record(r: dict, i: int) -> None:
             if not (isinstance(label, list) and 2 <= len(label) <= 4
                     and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in label)):
                 raise ReplayError(field, f"{label!r} is not a chunk label (object, level[, form]) of integers >= 0", i)
+            chunk = label[:-1] if field == "in_flight" else label   # in flight: the last entry is bytes left
+            if units is not None and len(chunk) == len(units) and any(v >= n for v, n in zip(chunk, units)):
+                raise ReplayError(field, f"{label!r}: no such chunk (the run's grid is "
+                                         f"{' x '.join(map(str, units))})", i)
 
 
 def _read_runs(run_dir: Path) -> list[_Run]:
@@ -126,15 +155,16 @@ def _read_runs(run_dir: Path) -> list[_Run]:
     records = read_records(slots_path)
     if not records:
         raise ReplayError("slots.jsonl", f"{slots_path} holds no slot records")
-    by_key: dict[tuple, dict[int, dict]] = {}
-    for i, r in enumerate(records, start=1):
-        _check_record(r, i)
-        by_key.setdefault(_key(r), {})[r["slot"]] = r   # a later line of a slot replaces an earlier one
     summaries = {}
     summary_path = run_dir / "summary.jsonl"
-    if summary_path.exists():
+    if summary_path.exists():   # first: it bounds the records' slots and chunks
         for s in read_records(check_regular_file(summary_path, ReplayError, field="summary.jsonl")):
-            summaries[_key(s)] = s
+            if isinstance(s, dict):
+                summaries[_key(s)] = s
+    by_key: dict[tuple, dict[int, dict]] = {}
+    for i, r in enumerate(records, start=1):
+        _check_record(r, i, summaries.get(_key(r)) if isinstance(r, dict) else None)
+        by_key.setdefault(_key(r), {})[r["slot"]] = r   # a later line of a slot replaces an earlier one
     return [_Run(key, tuple(slots[t] for t in sorted(slots)), summaries.get(key)) for key, slots in by_key.items()]
 
 

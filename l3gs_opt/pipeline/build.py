@@ -51,9 +51,11 @@ from l3gs_opt.input_files import read_json
 from l3gs_opt.scene.scene_files import read_scene
 from l3gs_opt.scene.splats import SceneError, SplatScene, ply_property, read_ply, write_ply
 
-__all__ = ["BuildError", "BuildSchedule", "QUICK", "DEFAULT", "BuildResult", "build_bundle", "scale_camera",
-           "hierarchy_parents", "check_trainable", "MAX_TRAIN_LOG_SCALE", "MAX_TRAIN_SH"]
+__all__ = ["BuildError", "IN_MEMORY_TEACHER", "BuildSchedule", "QUICK", "DEFAULT", "BuildResult", "build_bundle",
+           "scale_camera", "hierarchy_parents", "check_trainable", "MAX_TRAIN_LOG_SCALE", "MAX_TRAIN_SH"]
 
+#: ``build.teacher`` of a bundle built from a scene in memory: no file to score against later.
+IN_MEMORY_TEACHER = "<in memory>"
 #: Largest ``scale_*`` (natural log of a standard deviation, world units) a teacher may hold: a
 #: standard deviation of 4.9e8 units. Training overflows (NaN) from about 44.
 MAX_TRAIN_LOG_SCALE = 20.0
@@ -313,7 +315,7 @@ def build_bundle(teacher, cameras: Sequence, sizes: Sequence[int], variant: str,
     else:
         scene = teacher
         ids = scene.object_ids.tobytes() if scene.object_ids is not None else b""
-        ident = {"teacher": "<in memory>", "teacher_sha256": hashlib.sha256(scene.means.tobytes() + scene.sh.tobytes()
+        ident = {"teacher": IN_MEMORY_TEACHER, "teacher_sha256": hashlib.sha256(scene.means.tobytes() + scene.sh.tobytes()
                                                                             + ids).hexdigest()}
     check_trainable(scene)
     sizes = check_sizes(sizes, scene.num_splats, field="--layers")

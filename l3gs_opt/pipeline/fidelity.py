@@ -26,7 +26,6 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.pipeline.utilities import ScenePictures, chunk_gains, get_utility
-from l3gs_opt.scene.bundle import read_bundle
 
 __all__ = ["FidelityError", "FidelityReport", "utility_fidelity", "DEFAULT_FIDELITY_UTILITIES"]
 
@@ -93,11 +92,11 @@ def utility_fidelity(bundle_path: str | os.PathLike[str], path: str | os.PathLik
     FidelityError
         A separate bundle, a count out of range, an unknown utility.
     """
-    from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING, viewer_cameras
+    from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING, read_delivery_bundle, viewer_cameras
     from l3gs_opt.traces.poses import PoseMapping
 
     for name, v, lo in (("samples", samples, 1), ("slots", slots, 1), ("samples_per_slot", samples_per_slot, 1),
-                        ("width", width, 11), ("height", height, 11)):
+                        ("width", width, 11), ("height", height, 11), ("seed", seed, 0)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise FidelityError(f"{name} = {v!r}: must be an integer >= {lo}")
     try:
@@ -106,7 +105,7 @@ def utility_fidelity(bundle_path: str | os.PathLike[str], path: str | os.PathLik
         raise FidelityError(str(exc)) from None
     if not chosen:
         raise FidelityError("utilities: name at least one")
-    bundle = read_bundle(bundle_path)
+    bundle = read_delivery_bundle(bundle_path)
     m = bundle.manifest
     if m["representation"] != "layered":
         raise FidelityError(f"{bundle_path}: a {m['representation']} bundle; the fidelity check needs a layered one")

@@ -29,6 +29,7 @@ import numpy as np
 from l3gs_opt.scene.bundle import Bundle, read_bundle
 from l3gs_opt.scene.cameras import Camera, load_cameras
 from l3gs_opt.errors import InstanceError
+from l3gs_opt.pipeline.counts import MAX_SAMPLES_PER_SLOT, check_count
 from l3gs_opt.problem.instance import Instance, Options
 from l3gs_opt.traces.poses import PoseError, PoseMapping, PoseTrace, read_camera_path, read_pose_log
 from l3gs_opt.traces.predictors import predict_viewport, wrap_deg
@@ -36,10 +37,28 @@ from l3gs_opt.traces.bandwidth import mbps_to_bytes, read_bandwidth_trace
 from l3gs_opt.pipeline.splat_utility import _labels
 from l3gs_opt.pipeline.utilities import DEFAULT_UTILITY, get_utility
 
-__all__ = ["instance_from_bundle", "bundle_costs", "viewer_cameras", "Z_UP_MAPPING"]
+__all__ = ["instance_from_bundle", "bundle_costs", "viewer_cameras", "read_delivery_bundle", "Z_UP_MAPPING"]
 
 #: Head poses (y up) into a z-up scene such as the procedural rooms: log x -> x, y -> z, z -> y.
 Z_UP_MAPPING = PoseMapping(world_from_log=((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 1.0, 0.0)))
+
+
+def read_delivery_bundle(bundle: "str | os.PathLike[str] | Bundle") -> Bundle:
+    """A bundle (path or :class:`Bundle`) checked as ``bundle export`` checks it before anything is
+    delivered from it (:func:`~l3gs_opt.scene.stream_index.check_streamable`): a duplicated chunk
+    would be counted twice in the costs and a wrong ``cumulative_splats`` misstates the levels, so
+    simulating or pricing such a bundle would give numbers for a bundle that cannot be streamed.
+
+    Raises
+    ------
+    l3gs_opt.scene.bundle.BundleError, l3gs_opt.scene.stream_index.StreamError
+        Naming the field and index (``chunks[20]``, ``levels[1]``), as ``bundle export`` does.
+    """
+    from l3gs_opt.scene.stream_index import check_streamable
+
+    b = bundle if isinstance(bundle, Bundle) else read_bundle(bundle)
+    check_streamable(b.manifest)
+    return b
 
 
 def bundle_costs(bundle: Bundle) -> tuple[np.ndarray, list[list[int]]]:
@@ -93,8 +112,8 @@ def viewer_cameras(path: str | os.PathLike[str], *, slots: int, slot_s: float = 
             cams = [Camera(**intrinsics_from_fov(width, height, fov_deg), world_to_camera=m) for m in matrices]
             return _one_per_slot(cams, slots, predict, str(p))
     trace = read_pose_log(p)
-    if samples_per_slot < 1:
-        raise InstanceError("samples_per_slot", f"{samples_per_slot}: must be >= 1")
+    # Checked here, where the samples are made, so every command that reads a pose log gets it.
+    check_count("samples_per_slot", samples_per_slot, high=MAX_SAMPLES_PER_SLOT, error=InstanceError)
     end_s = pose_start_s + slots * slot_s
     if trace.time_s[-1] < end_s - slot_s:
         raise InstanceError("path", f"{p}: the poses end at {trace.time_s[-1]:.1f} s, before the last slot "
@@ -154,7 +173,7 @@ def instance_from_bundle(bundle_path: str | os.PathLike[str], path: str | os.Pat
         raise InstanceError("slots", f"{slots}: must be >= 1")
     if not (slot_s > 0 and math.isfinite(slot_s)):
         raise InstanceError("slot_s", f"{slot_s!r}: must be a positive number of seconds")
-    bundle = read_bundle(bundle_path)
+    bundle = read_delivery_bundle(bundle_path)
     m = bundle.manifest
     cost, empty = bundle_costs(bundle)
     raw = read_bandwidth_trace(trace)

@@ -55,6 +55,7 @@ import torch
 
 from l3gs_opt.scene.cameras import Camera
 from l3gs_opt.errors import L3gsError
+from l3gs_opt.pipeline.counts import MAX_GRID_POSITIONS, MAX_YAW_STEPS, check_count
 from l3gs_opt.renderer import HAVE_NUMBA
 from l3gs_opt.renderer.projection import JACOBIAN_CLAMP, NEAR_PLANE, TILE_SIZE
 from l3gs_opt.scene.splats import SplatScene
@@ -510,6 +511,11 @@ def grid_positions(lo, hi, counts) -> np.ndarray:
         raise UtilityError("lo, hi: must be 3 finite numbers each")
     if len(counts) != 3 or any(int(n) != n or n < 1 for n in counts):
         raise UtilityError(f"counts = {list(counts)}: must be 3 integers >= 1")
+    # Before allocating: 100000^3 positions would ask numpy for petabytes.
+    total = math.prod(int(n) for n in counts)
+    if total > MAX_GRID_POSITIONS:
+        raise UtilityError(f"counts = {list(counts)}: {total} positions; must be at most "
+                           f"MAX_GRID_POSITIONS = {MAX_GRID_POSITIONS}")
     for k in range(3):
         if hi[k] < lo[k] or (hi[k] == lo[k] and counts[k] > 1):
             raise UtilityError(f"hi[{k}] = {hi[k]} must be > lo[{k}] = {lo[k]} (or equal with counts[{k}] = 1)")
@@ -737,8 +743,7 @@ def build_utility_table(scene: "SplatScene | UtilityScene", positions: np.ndarra
     if not np.all(np.isfinite(positions)):
         p = int(np.argwhere(~np.isfinite(positions))[0, 0])
         raise UtilityError(f"positions[{p}] = {positions[p].tolist()}: must be finite")
-    if isinstance(yaw_steps, bool) or int(yaw_steps) != yaw_steps or yaw_steps < 1:
-        raise UtilityError(f"yaw_steps = {yaw_steps!r}: must be an integer >= 1")
+    check_count("yaw_steps", yaw_steps, high=MAX_YAW_STEPS, error=lambda f, m: UtilityError(f"{f} = {m}"))
     pitches = np.asarray(pitches_deg, dtype=np.float64).ravel()
     if pitches.size == 0:
         raise UtilityError("pitches_deg: need at least one pitch")

@@ -330,9 +330,14 @@ class _FunctionUtility(SplatUtility):
             return np.zeros(n)
         vals = []
         for c in cameras:
-            v = np.asarray(self.fn(prepared, c), dtype=np.float64)
+            try:
+                v = np.asarray(self.fn(prepared, c), dtype=np.float64)
+            except Exception as exc:  # noqa: BLE001 -- any failure of user code: one line naming it, not a traceback
+                text = str(exc).splitlines()[0] if str(exc) else ""
+                raise UtilityNameError(f"utility: {self.name!r} could not be called as a utility f(scene, camera): "
+                                       f"{type(exc).__name__}: {text}") from exc
             if v.shape != (n,) or not np.all(np.isfinite(v)) or np.any(v < 0):
-                raise ValueError(f"utility {self.name!r}: returned {v.shape} values; expected {n} finite values >= 0")
+                raise UtilityNameError(f"utility: {self.name!r} returned {v.shape} values; expected {n} finite values >= 0")
             vals.append(v)
         return np.mean(vals, axis=0)
 

@@ -91,8 +91,8 @@ from l3gs_opt.scene.bundle import BUNDLE_SCHEMA, REPRESENTATION, VARIANTS, Bundl
 
 __all__ = ["STREAM_SCHEMA", "PACKS", "DEFAULT_ALIGNMENT", "MAX_ALIGNMENT", "INDEX_NAME", "StreamError",
            "Bound", "RecordLayout", "StreamLevel", "StreamObject", "StreamChunk", "StreamIndex",
-           "export_stream", "read_stream", "read_chunk_bytes", "load_stream_chunk", "verify_stream",
-           "stream_bundle"]
+           "export_stream", "check_streamable", "read_stream", "read_chunk_bytes", "load_stream_chunk",
+           "verify_stream", "stream_bundle"]
 
 STREAM_SCHEMA = "l3gs-opt/stream@1"
 PACKS = ("single", "per-chunk")
@@ -365,7 +365,7 @@ def export_stream(bundle_dir, out_dir, *, pack: str = "single", alignment: int =
     _check_export_args(bundle_dir, out, pack, alignment)
     b = read_bundle(bundle_dir)
     m = b.manifest
-    records = _export_records(m)
+    records = check_streamable(m)
     out.mkdir(parents=True, exist_ok=True)
     if (out / INDEX_NAME).is_file():  # first: no moment where an old index points at missing data
         (out / INDEX_NAME).unlink()
@@ -446,6 +446,23 @@ def _chunk_bounds(b: Bundle) -> list[tuple[Optional[Bound], Optional[Bound]]]:
                                         f"of {c['splats']} splats holds its splats' geometry", i)
         out.append(geo[key][1])
     return out
+
+
+def check_streamable(m: dict) -> dict[str, RecordLayout]:
+    """What a bundle's manifest ``m`` must meet beyond :func:`~l3gs_opt.scene.bundle.read_bundle`'s
+    checks to be exported (and so delivered): no two chunks of one (object, level, SH form), one
+    record layout per SH form, and each level's counts consistent (``cumulative_splats`` the running
+    sum). Returns the record layouts.
+
+    Raises
+    ------
+    StreamError
+        Naming the field and index (``chunks[20]``, ``levels[1]``).
+    """
+    records = _export_records(m)
+    # The index's own level check; the levels' bytes are not known yet and not part of it.
+    _read_levels({"representation": m["representation"], "levels": [{**lv, "bytes": 0} for lv in m["levels"]]})
+    return records
 
 
 def _export_records(m: dict) -> dict[str, RecordLayout]:

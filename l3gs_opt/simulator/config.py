@@ -150,6 +150,11 @@ class SimConfig:
         if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) or not math.isfinite(d) \
                 or not 0 <= d <= self.slot_s / self.substeps:
             raise SimulationError("decision_s", f"{d!r}: must be seconds in [0, slot_s / substeps]")
+        # Each is work per slot: a huge value is a typo that would run for days, not a setting.
+        from l3gs_opt.pipeline.counts import MAX_SAMPLES_PER_SLOT, MAX_SUBSTEPS, check_count
+
+        check_count("samples_per_slot", self.samples_per_slot, high=MAX_SAMPLES_PER_SLOT, error=SimulationError)
+        check_count("substeps", self.substeps, high=MAX_SUBSTEPS, error=SimulationError)
         if self.width < 11 or self.height < 11:
             raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),

@@ -130,8 +130,11 @@ def trace_bytes(trace: str, *, mbps: float | None = None, start: int = 0, slots:
                 slot_s: float = 1.0, format: str = "auto") -> tuple[np.ndarray, dict]:
     """Bytes per slot of a trace window (scaled to a mean of ``mbps`` Mbit/s first) and what was used;
     ``format`` as :func:`l3gs_opt.traces.bandwidth.read_bandwidth_trace`'s."""
-    from l3gs_opt.traces.bandwidth import mbps_to_bytes, read_bandwidth_trace
+    from l3gs_opt.pipeline.counts import check_count
+    from l3gs_opt.traces.bandwidth import MAX_TRACE_SAMPLES, mbps_to_bytes, read_bandwidth_trace
 
+    # By name here: the trace window's own message ("length=0 does not fit") does not say it was --slots.
+    check_count("slots", slots, high=MAX_TRACE_SAMPLES, error=SimulationError)
     raw = read_bandwidth_trace(trace, format=format)
     scaled, factor = raw.scaled(mbps) if mbps is not None else (raw, 1.0)
     window = scaled.window(start, slots)
@@ -181,17 +184,16 @@ class Simulation:
                  reference=None, mapping=None, utility_tables: Mapping[str, Any] | None = None,
                  info: Mapping[str, Any] | None = None, cache_dir: str | os.PathLike | None = None,
                  render_cache=None, view_cache=None):
-        from l3gs_opt.scene.bundle import Bundle, read_bundle
         from l3gs_opt.scene.camera_paths import intrinsics_from_fov
         from l3gs_opt.traces.poses import PoseTrace, read_pose_log
-        from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
+        from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING, read_delivery_bundle
         from l3gs_opt.scene.scene_files import read_scene
         from l3gs_opt.scene.splats import SplatScene
         from l3gs_opt.simulator.render import REFERENCE_CACHE, VIEW_CACHE, RenderCache, render_backend
         if not isinstance(config, SimConfig):
             raise SimulationError("config", f"{type(config).__name__} is not a SimConfig")
         self.config = config
-        self.bundle = bundle if isinstance(bundle, Bundle) else read_bundle(bundle)
+        self.bundle = read_delivery_bundle(bundle)
         self.poses = poses if isinstance(poses, PoseTrace) else read_pose_log(poses)
         self.link_bytes = [int(b) for b in Link(list(bandwidth_bytes)).bandwidth]   # validated there
         if not self.link_bytes:

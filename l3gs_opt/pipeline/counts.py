@@ -1,0 +1,50 @@
+"""Counts given by a user (viewpoints per slot, parts of a slot, grid sizes): one check with an upper
+limit, so that a mistyped ``--samples-per-slot 100000000`` is refused by name before any work
+instead of running for days or exhausting memory.
+
+The limits are far above any useful setting and well below what takes hours on a laptop; each
+states why it is where it is.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from l3gs_opt.errors import L3gsError
+
+__all__ = ["CountError", "check_count", "MAX_SAMPLES_PER_SLOT", "MAX_SUBSTEPS", "MAX_YAW_STEPS",
+           "MAX_GRID_POSITIONS"]
+
+#: Viewpoints per slot: each is one utility evaluation (and render) per slot; 1000 is a sample every
+#: millisecond of a 1 s slot, finer than any pose log.
+MAX_SAMPLES_PER_SLOT = 1000
+#: Parts of a slot, each a re-plan of every client: 1000 is a part per millisecond of a 1 s slot.
+MAX_SUBSTEPS = 1000
+#: Yaws of a utility table: 3600 is one every 0.1 degree, far below what interpolation needs.
+MAX_YAW_STEPS = 3600
+#: Positions of a utility table grid (NX * NY * NZ): each costs ``yaw_steps * len(pitches)``
+#: viewpoint evaluations; 100000 (e.g. 46^3) already takes hours and its table gigabytes.
+MAX_GRID_POSITIONS = 100_000
+
+
+class CountError(L3gsError, ValueError):
+    """A count out of its range; the message starts with the field."""
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"{field}: {message}")
+
+
+def check_count(field: str, value: object, *, high: int, low: int = 1,
+                error: Callable[[str, str], Exception] = CountError) -> int:
+    """``value`` as an int if it is an integer in ``[low, high]``, else raise ``error(field, message)``.
+
+    ``error`` takes the field and the message (``"0: must be an integer in [1, 1000]"``), as
+    :class:`~l3gs_opt.simulator.config.SimulationError` and :class:`~l3gs_opt.errors.InstanceError`
+    do, so each caller raises its own error class.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+        raise error(field, f"{value!r}: must be an integer in [{low}, {high}]")
+    return int(value)
