@@ -12,7 +12,6 @@ import shutil
 import numpy as np
 import pytest
 
-from l3gs_opt.cli.main import main
 from l3gs_opt.delivery.replay import ReplayError, write_replay
 from l3gs_opt.errors import InstanceError
 from l3gs_opt.pipeline.counts import MAX_SAMPLES_PER_SLOT, CountError, check_count
@@ -24,21 +23,8 @@ from l3gs_opt.scene.bundle import write_bundle
 from l3gs_opt.scene.procedural import make_scene
 from l3gs_opt.simulator.simulation import SimConfig, SimulationError
 from l3gs_opt.traces.poses import synthetic_poses, write_pose_log
+from cli_helpers import one_error_line
 from renderer_helpers import make_camera
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_error_line(capsys, *argv) -> str:
-    """Run the CLI on bad input: exit 2 and stderr exactly one ``error:`` line, which is returned."""
-    code, _, err = run_cli(capsys, *argv)
-    lines = [x for x in err.splitlines() if x.strip()]
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), (code, err)
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -24,32 +24,18 @@ import pytest
 from l3gs_opt.scene.bundle import BundleError, read_bundle, write_bundle
 from l3gs_opt.scene.cameras import (MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, CameraError, load_any_cameras, load_cameras,
                               read_colmap, save_cameras, write_colmap)
-from l3gs_opt.cli.main import main
 from l3gs_opt.simulator.link import Link, LinkError
 from l3gs_opt.traces.poses import PoseError, PoseTrace, read_camera_path, read_pose_log, synthetic_poses, write_pose_log
 from l3gs_opt.traces.predictors import PredictionError, viewport_errors
 from l3gs_opt.pipeline.build import BuildError, build_bundle
 from l3gs_opt.scene.splats import SceneError, read_ply, write_ply
 from l3gs_opt.traces.bandwidth import MAX_MBPS, TraceError, mbps_to_bytes, read_bandwidth_trace
+from cli_helpers import one_error_line
 from renderer_helpers import make_camera, random_scene
 
 POSE_LINE = ("2024-06-20 17:48:{s:02d}, Head Position: ({x}, 1.49, 0.52), Head Rotation: (3.92, 351.06, 359.03), "
              "Left Controller Position: (0.1, 0.2, 0.3), Left Controller Rotation: (1, 2, 3), "
              "Right Controller Position: (0.1, 0.2, 0.3), Right Controller Rotation: (1, 2, 3)")
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_error_line(capsys, *argv) -> str:
-    """Run the CLI on bad input: exit 2 and stderr exactly one ``error:`` line, which is returned."""
-    code, _, err = run_cli(capsys, *argv)
-    lines = err.splitlines()
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), (code, err)
-    return lines[0]
 
 
 def no_warnings(fn, *args, **kwargs):

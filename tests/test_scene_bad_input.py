@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from l3gs_opt.cli.main import main
 from l3gs_opt.scene.camera_paths import MAX_PATH_VIEWS, orbit_path, walk_path
 from l3gs_opt.scene.camera_sampling import sample_cameras
 from l3gs_opt.scene.cameras import (MAX_PRINCIPAL_POINT_OUTSIDE, CameraError, camera_from_dict, camera_to_dict,
@@ -28,21 +27,8 @@ from l3gs_opt.scene.cameras import (MAX_PRINCIPAL_POINT_OUTSIDE, CameraError, ca
 from l3gs_opt.scene.procedural import make_scene
 from l3gs_opt.scene.segment import segment_scene
 from l3gs_opt.scene.splats import MAX_ABS_MEAN, MAX_LOG_SCALE, SceneError, read_ply, write_ply
+from cli_helpers import one_error_line, run_cli
 from renderer_helpers import make_camera, random_scene
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_error_line(capsys, *argv) -> str:
-    """Run the CLI on bad input: exit 2 and stderr exactly one ``error:`` line, which is returned."""
-    code, _, err = run_cli(capsys, *argv)
-    lines = err.splitlines()
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), (code, err)
-    return lines[0]
 
 
 @pytest.fixture
