@@ -250,7 +250,7 @@ def test_a_bad_user_function_is_named():
     U.register_utility("test-bad", lambda scene, camera: -np.ones(len(scene.means)))
     try:
         u = U.get_utility("test-bad")
-        with pytest.raises(ValueError, match="utility 'test-bad'"):
+        with pytest.raises(ValueError, match="^utility: 'test-bad' returned"):
             u.splat_values(random_scene(5), [make_camera()])
     finally:
         U._REGISTRY.pop("test-bad", None)
