@@ -13,7 +13,7 @@ import numpy as np
 from l3gs_opt.scene.cameras import Camera, CameraError, look_at
 from l3gs_opt.scene.procedural import ROOM_HALF, ROOM_HEIGHT
 
-__all__ = ["intrinsics_from_fov", "orbit_path", "walk_path", "MAX_PATH_VIEWS"]
+__all__ = ["intrinsics_from_fov", "orbit_path", "walk_path", "check_views", "MAX_PATH_VIEWS"]
 
 #: Most cameras in one path. A path is saved as a camera JSON list (~580 bytes a camera), which
 #: :func:`l3gs_opt.scene.cameras.load_cameras` reads back only up to ``MAX_CAMERA_FILE_BYTES``
@@ -23,11 +23,12 @@ __all__ = ["intrinsics_from_fov", "orbit_path", "walk_path", "MAX_PATH_VIEWS"]
 MAX_PATH_VIEWS = 10_000
 
 
-def _check_views(n_views) -> int:
-    """``n_views`` as an int in ``[1, MAX_PATH_VIEWS]``, checked before any camera is built."""
+def check_views(n_views, field: str = "n_views") -> int:
+    """``n_views`` as an int in ``[1, MAX_PATH_VIEWS]``, checked before any camera is built (camera
+    paths here, sampled training cameras in :mod:`.camera_sampling`)."""
     if isinstance(n_views, bool) or not isinstance(n_views, (int, np.integer)) or \
             not 1 <= n_views <= MAX_PATH_VIEWS:
-        raise CameraError(f"n_views: {n_views!r} must be an integer in [1, {MAX_PATH_VIEWS:,}] (MAX_PATH_VIEWS)")
+        raise CameraError(f"{field}: {n_views!r} must be an integer in [1, {MAX_PATH_VIEWS:,}] (MAX_PATH_VIEWS)")
     return int(n_views)
 
 
@@ -63,7 +64,7 @@ def orbit_path(n_views: int = 36, *, width: int = 800, height: int = 600, fov_x_
     target : array_like, shape [3], keyword-only
         Look-at point (metres).
     """
-    n_views = _check_views(n_views)
+    n_views = check_views(n_views)
     k = intrinsics_from_fov(width, height, fov_x_deg)
     cams = []
     for i in range(n_views):
@@ -83,7 +84,7 @@ def walk_path(n_views: int = 36, *, width: int = 800, height: int = 600, fov_x_d
     objects enter, cross and leave the view (what a viewport predictor sees in a walk-through).
     ``n_views`` is 1..:data:`MAX_PATH_VIEWS`.
     """
-    n_views = _check_views(n_views)
+    n_views = check_views(n_views)
     k = intrinsics_from_fov(width, height, fov_x_deg)
     ax, ay = 0.85 * ROOM_HALF, 0.7 * ROOM_HALF
     cams = []

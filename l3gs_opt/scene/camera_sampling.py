@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from l3gs_opt.scene.camera_paths import MAX_PATH_VIEWS, intrinsics_from_fov
+from l3gs_opt.scene.camera_paths import check_views, intrinsics_from_fov
 from l3gs_opt.scene.cameras import Camera, CameraError, look_at
 from l3gs_opt.scene.segment import BACKGROUND_FACTOR
 from l3gs_opt.scene.splats import SplatScene
@@ -91,8 +91,7 @@ def sample_cameras(scene: SplatScene, count: int = 32, *, mode: str = "outside",
     """
     if mode not in CAMERA_MODES:
         raise CameraError(f"mode: {mode!r} must be one of {', '.join(CAMERA_MODES)}")
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 1 <= count <= MAX_PATH_VIEWS:
-        raise CameraError(f"count: {count!r} must be an integer in [1, {MAX_PATH_VIEWS:,}] (MAX_PATH_VIEWS)")
+    count = check_views(count, "count")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:  # as splats.check_seed
         raise CameraError(f"seed = {seed!r}: must be an integer >= 0")
     if not (isinstance(distance, (int, float)) and math.isfinite(distance) and distance > 0):
