@@ -6,7 +6,8 @@ the field and index, never a traceback, a run that does not end, or silent accep
 3. PLY values whose float32 arithmetic overflows (``scale_0 = 1e30``, ``x = 3e38``), named by property;
 4. ``render --index -1`` (no Python negative indexing);
 5. ``scene make --background 2,0,0`` (the check ``render`` uses) and ``scene make --out m.txt``;
-6. a camera whose principal point lies far outside the image, or whose name is not text.
+6. a camera whose principal point lies far outside the image, or whose name is not text;
+7. a camera translation beyond float32's reach (an empty picture with exit 0 before, s19).
 
 CLI checks run the real ``l3gs_opt.cli.main.main``: exit code 2 and exactly one ``error:`` line.
 """
@@ -172,3 +173,24 @@ def test_principal_point_limit_is_one_image_outside():
             camera_from_dict({**d, "cx": cx})
     # a resized camera keeps its principal point inside the limit (cx scales with the width)
     assert make_camera(width=40, height=30, cx=-40.0).resized(80, 60).cx == -80.0
+
+
+def _moved(cam: dict, translation: float) -> dict:
+    m = [list(row) for row in cam["world_to_camera"]]
+    m[2][3] = translation
+    return {**cam, "world_to_camera": m}
+
+
+def test_camera_translation_beyond_float32_reach_is_refused(capsys, tmp_path, scene_file):
+    """A camera 1e30 units away used to render an empty picture with exit 0: its float32 distances
+    overflow. It is refused by the splats' own position limit, MAX_ABS_MEAN; 1e17 is accepted."""
+    d = camera_to_dict(make_camera())
+    path = tmp_path / "cams.json"
+    path.write_text(json.dumps([d, _moved(d, 1e30)]))
+    line = one_error_line(capsys, "render", scene_file, "--camera", path, "--index", 1, "--out", tmp_path / "x.png")
+    assert line.startswith("error: cams.json[1].world_to_camera[2][3]: 1e+30 must be within +-1e+18 world units")
+    assert "MAX_ABS_MEAN" in line and not (tmp_path / "x.png").exists()
+    assert MAX_ABS_MEAN == 1e18
+    camera_from_dict(_moved(d, 1e17))
+    with pytest.raises(CameraError, match=r"^camera\.world_to_camera\[2\]\[3\]: -2e\+18 must be within"):
+        camera_from_dict(_moved(d, -2e18))

@@ -60,6 +60,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import check_regular_file, read_json, read_text
+from l3gs_opt.scene.splats import MAX_ABS_MEAN
 from l3gs_opt.traces.bandwidth import iter_lines
 
 __all__ = ["CameraError", "DistortionWarning", "Camera", "load_cameras", "load_camera", "load_any_cameras",
@@ -219,8 +220,9 @@ class Camera:
         On a non-positive or too large size (:data:`MAX_IMAGE_SIDE`, :data:`MAX_IMAGE_PIXELS`), a
         non-positive or too large focal length (:data:`MAX_FOCAL_PX`), a principal point more
         than :data:`MAX_PRINCIPAL_POINT_OUTSIDE` image sizes outside the image, a non-finite
-        value, a matrix that is not rigid, a background channel outside [0, 1], or a name that
-        is not text.
+        value, a matrix that is not rigid, a translation beyond the splats'
+        :data:`~l3gs_opt.scene.splats.MAX_ABS_MEAN`, a background channel outside [0, 1], or a
+        name that is not text.
     """
 
     width: int
@@ -273,6 +275,13 @@ class Camera:
             raise CameraError(f"world_to_camera[{i}][{j}]: {m[i, j]} is not finite")
         if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
             raise CameraError(f"world_to_camera[3]: {m[3].tolist()} must be [0, 0, 0, 1]")
+        # |t| is the camera centre's distance from the origin: beyond the splats' own limit the
+        # renderer's float32 distances overflow and the picture comes out empty, without an error.
+        far = np.nonzero(np.abs(m[:3, 3]) > MAX_ABS_MEAN)[0]
+        if len(far):
+            i = int(far[0])
+            raise CameraError(f"world_to_camera[{i}][3]: {m[i, 3]:g} must be within +-{MAX_ABS_MEAN:g} world units "
+                              "(MAX_ABS_MEAN): float32 arithmetic on it overflows")
         r = m[:3, :3]
         err = np.abs(r @ r.T - np.eye(3)).max()
         if err > ROTATION_TOL or np.linalg.det(r) < 0:
