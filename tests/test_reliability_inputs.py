@@ -294,7 +294,7 @@ def test_item9_csv_time_column(tmp_path, capsys):
 def test_item9_render_background_channels_in_0_1(world, tmp_path, capsys, background):
     line = one_error_line(capsys, "render", world / "s.ply", "--camera", world / "cams.json", "--out",
                           tmp_path / "x.png", "--background", background)
-    assert line.startswith("error: background[") and "must be in [0, 1]" in line
+    assert line.startswith("error: --background[") and "must be in [0, 1]" in line
     assert not (tmp_path / "x.png").exists()
 
 

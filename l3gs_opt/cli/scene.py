@@ -54,8 +54,8 @@ def save_image(image, path) -> Path:
 
 
 def _parse_rgb(text: str):
-    """``r,g,b`` as three floats; anything else is passed on as given, for the camera's own check to
-    name it in one error line (``background: ... must be 3 numbers in [0, 1]``)."""
+    """``r,g,b`` as three floats; anything else is passed on as given, for the one background check
+    to name it in one error line (``--background: ... must be 3 numbers in [0, 1]``)."""
     try:
         return [float(v) for v in text.split(",")]
     except ValueError:
@@ -66,13 +66,15 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import time
 
     from l3gs_opt.renderer.render import render_scene
-    from l3gs_opt.scene.cameras import parse_image_size
+    from l3gs_opt.scene.cameras import check_background, parse_image_size
     from l3gs_opt.scene.scene_files import read_scene
 
     out = Path(args.out)
     if out.suffix.lower() not in (".png", ".npy"):
         raise OutputError(f"--out: {out.name} must end in .png or .npy")
     size = parse_image_size(args.size, field="--size") if args.size is not None else None
+    # named as the option, as scene make does, and before the scene is read
+    background = check_background(args.background, "--background") if args.background is not None else None
     scene = read_scene(args.scene, ignore_unknown=args.ignore_unknown_properties)
     cams = load_any_cameras(args.camera, size=size)
     # no Python negative indexing: --index -1 silently rendering the last camera hides a typo
@@ -80,8 +82,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise CameraError(f"--index: {args.index} out of range ({args.camera} holds {len(cams)} cameras, "
                           f"indices 0..{len(cams) - 1})")
     cam = cams[args.index]
-    if args.background is not None:
-        cam = cam.replace(background=args.background)
+    if background is not None:
+        cam = cam.replace(background=background)
     t0 = time.perf_counter()
     result = render_scene(scene, cam, sh_degree=args.sh_degree)
     dt = time.perf_counter() - t0
