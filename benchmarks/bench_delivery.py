@@ -47,6 +47,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 
 TRACE = "lumos-throughput-mid-11"
 ROOT = Path(__file__).resolve().parents[1]
@@ -243,7 +244,7 @@ def _fmt_ssim(x) -> str:
 
 
 def write_report(data: dict, out: Path) -> None:
-    out.with_suffix(".json").write_text(json.dumps(data, indent=1))
+    out.with_suffix(".json").write_text(dumps(data, indent=1))
     m = data["machine"]
     lines = [
         "# Real delivery against the simulator, and the server's cost (issue 24)", "",

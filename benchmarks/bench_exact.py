@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info, machines_line  # noqa: E402
 
 from l3gs_opt import Options, solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.problem.solution import GAP_TOL  # noqa: E402
 from l3gs_opt.bench.suites import split_method, suite_specs  # noqa: E402
 
@@ -43,6 +44,16 @@ EXACT_METHODS = ["exact", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
 #: ``--report`` keeps everything in exact.md from this line on (notes written by hand).
 NOTES_MARK = "<!-- notes written by hand: kept by --report -->"
 HEURISTICS = ["rolling:bb", "rolling-future:bb", "mpc:3", "mpc:6", "progressive", "slope", "static"]
+
+
+def trace_gap(point: list, floor: float) -> float | None:
+    """The relative gap of a trace point ``[seconds, schedule, bound]``, at least ``floor``; None
+    while there is no finite positive bound (``null`` in the records, ``Infinity`` in files written
+    before they became strict JSON)."""
+    _, z, b = point
+    if b is None or not math.isfinite(b) or b <= 0:
+        return None
+    return max((b - z) / b, floor)
 
 
 def _prefix(args: argparse.Namespace) -> str:
@@ -80,7 +91,7 @@ def run(args: argparse.Namespace) -> None:
         def write(rec: dict) -> None:
             rec.update({"machine": machine, "loadavg_after": os.getloadavg(), "time_limit_s": args.time_limit,
                         "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())})
-            fh.write(json.dumps(rec, default=float) + "\n")
+            fh.write(dumps(rec) + "\n")
             fh.flush()
             print(rec["instance_id"], rec["label"], rec.get("status"), rec.get("objective"), rec.get("bound"),
                   rec.get("gap"), f"{rec.get('runtime_s', 0):.1f}s", flush=True)
@@ -211,11 +222,10 @@ def _gap_plots(by_inst: dict, out: Path, prefix: str, title: str) -> list[str]:
         for iid, d in by_inst.items():
             if "exact" not in d or d["exact"]["J"] != J:
                 continue
-            tr = d["exact"]["details"].get("trace", [])
-            if tr:
-                ts = [p[0] for p in tr]
-                gaps = [max((p[2] - p[1]) / p[2], 1e-9) for p in tr]
-                ax.step(ts, gaps, where="post", color=colours["exact"], alpha=0.8,
+            pts = [(p[0], trace_gap(p, 1e-9)) for p in d["exact"]["details"].get("trace", [])]
+            pts = [p for p in pts if p[1] is not None]
+            if pts:
+                ax.step([p[0] for p in pts], [p[1] for p in pts], where="post", color=colours["exact"], alpha=0.8,
                         label="exact (trace)" if iid.endswith("s0") else None)
             for label in EXACT_METHODS[1:]:
                 r = d.get(label)
@@ -306,7 +316,7 @@ def _write(out: Path, prefix: str, lines: list[str], summary: dict) -> None:
     old = md.read_text(encoding="utf-8") if md.exists() else ""
     notes = old[old.index(NOTES_MARK):] if NOTES_MARK in old else ""
     md.write_text("\n".join(lines) + "\n" + ("\n" + notes if notes else ""), encoding="utf-8")
-    (out / f"{prefix}_summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n", encoding="utf-8")
+    (out / f"{prefix}_summary.json").write_text(dumps(summary, indent=1) + "\n", encoding="utf-8")
 
 
 def report_cumulative(args: argparse.Namespace) -> None:

@@ -23,6 +23,7 @@ from bench_exact import bench_instance  # noqa: E402
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.bench.suites import suite_specs  # noqa: E402
 
 
@@ -73,7 +74,7 @@ def main() -> int:
                    "machine": machine, "loadavg_after": os.getloadavg(), "time_limit_s": args.time_limit,
                    "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
             rec.pop("arrivals")
-            fh.write(json.dumps(rec, default=float) + "\n")
+            fh.write(dumps(rec) + "\n")
             fh.flush()
             print(spec.instance_id, args.budget, sol.status, sol.objective, sol.bound, f"{sol.runtime_s:.1f}s",
                   flush=True)

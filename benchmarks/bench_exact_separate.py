@@ -25,9 +25,11 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_exact import trace_gap  # noqa: E402
 from machine import machine_info, machines_line  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.bench.suites import _problem, _traces, split_method  # noqa: E402
 
 METHODS = ["exact", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
@@ -56,7 +58,7 @@ def run(args: argparse.Namespace) -> None:
                 done.add((rec["instance_id"], rec["label"]))
     machine = machine_info()
     with path.open("a", encoding="utf-8") as fh:
-        fh.write(json.dumps({"label": "uptime:start", "uptime": _uptime(), "machine": machine}) + "\n")
+        fh.write(dumps({"label": "uptime:start", "uptime": _uptime(), "machine": machine}) + "\n")
         for iid, params in specs(args.sizes, args.seeds):
             inst = _problem(**params)
             for label in METHODS:
@@ -70,11 +72,11 @@ def run(args: argparse.Namespace) -> None:
                        "time_limit_s": args.time_limit, "machine": machine,
                        "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **sol.to_dict()}
                 rec.pop("arrivals")
-                fh.write(json.dumps(rec, default=float) + "\n")
+                fh.write(dumps(rec) + "\n")
                 fh.flush()
                 print(iid, label, rec["status"], rec["objective"], rec["bound"], rec["gap"],
                       f"{rec['runtime_s']:.1f}s", flush=True)
-        fh.write(json.dumps({"label": "uptime:end", "uptime": _uptime()}) + "\n")
+        fh.write(dumps({"label": "uptime:end", "uptime": _uptime()}) + "\n")
 
 
 def report(args: argparse.Namespace) -> None:
@@ -163,11 +165,8 @@ def report(args: argparse.Namespace) -> None:
         if r is None:
             continue
         c = colours[n % len(colours)]
-        tr = r["details"].get("trace", [])
-        xs = [p[0] for p in tr]
-        gaps = [max((p[2] - p[1]) / p[2], 1e-10) if p[2] not in (None, float("inf")) and p[2] > 0 else None
-                for p in tr]
-        pts = [(x, g) for x, g in zip(xs, gaps) if g is not None]
+        pts = [(p[0], trace_gap(p, 1e-10)) for p in r["details"].get("trace", [])]
+        pts = [p for p in pts if p[1] is not None]
         if r["status"] == "optimal":
             pts.append((r["runtime_s"], 1e-10))
         if pts:
@@ -195,7 +194,7 @@ def report(args: argparse.Namespace) -> None:
            "search and the restricted-master MIP as its incumbent. At J = 50 no method proves; `exact` carries "
            "the smallest bound, HiGHS the better schedule on one of the two seeds.", ""]
     (out / "exact_separate.md").write_text("\n".join(md) + "\n", encoding="utf-8")
-    (out / "exact_separate.json").write_text(json.dumps(summary, indent=1, default=float) + "\n", encoding="utf-8")
+    (out / "exact_separate.json").write_text(dumps(summary, indent=1) + "\n", encoding="utf-8")
 
 
 def main() -> None:

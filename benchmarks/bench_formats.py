@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import math
 import os
 import platform
@@ -32,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from l3gs_opt.renderer.metrics import psnr, ssim
+from l3gs_opt.jsonout import dumps
 from l3gs_opt.renderer.render import render_scene
 from l3gs_opt.scene.cameras import Camera, look_at
 from l3gs_opt.scene.procedural import make_scene
@@ -104,7 +104,7 @@ def _fmt_db(v: float) -> str:
 
 def write_report(rows: list[dict], meta: dict, out: Path) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1, default=float) + "\n")
+    out.with_suffix(".json").write_text(dumps({"meta": meta, "rows": rows}, indent=1) + "\n")
     m = meta["machine"]
     lines = ["# Scene file formats benchmark", "",
              f"Machine: {m['cpu']}, {m['cores']} cores, load average (1/5/15 min) at start "

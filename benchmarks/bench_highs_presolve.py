@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.problem.knapsack_sets import load_knapsack  # noqa: E402
 from l3gs_opt.bench.suites import suite_specs  # noqa: E402
 
@@ -83,7 +84,7 @@ def run(time_limit: float, resume: bool) -> Path:
                 rec = {"name": name, "variant": variant, "status": sol.status.value, "objective": sol.objective,
                        "bound": sol.bound, "optimum": optimum, "wall_s": wall, "load1": load,
                        "time_limit_s": time_limit, "versions": info["packages"], "cpu": info["cpu"]}
-                fh.write(json.dumps(rec) + "\n")
+                fh.write(dumps(rec) + "\n")
                 fh.flush()
                 print(f"{name:70s} {variant:10s} {sol.status.value:10s} {sol.objective:>16.1f} "
                       f"opt={optimum} {wall:6.2f}s", flush=True)

@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt.bench.report import known_optima_lines, known_optima_summary, annotate  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.bench.run import BenchTask, check_records, read_records, run_bench  # noqa: E402
 from l3gs_opt.bench.suites import default_methods, suite_specs  # noqa: E402
 
@@ -40,7 +41,7 @@ def _uptime() -> str:
 
 def _meta(records: Path, **fields: object) -> None:
     with open(f"{records}.meta.jsonl", "a", encoding="utf-8") as fh:
-        fh.write(json.dumps({"time": time.strftime("%Y-%m-%d %H:%M:%S"), "uptime": _uptime(), **fields}) + "\n")
+        fh.write(dumps({"time": time.strftime("%Y-%m-%d %H:%M:%S"), "uptime": _uptime(), **fields}) + "\n")
 
 
 def cmd_run(args: argparse.Namespace) -> None:
@@ -73,12 +74,12 @@ def cmd_report(args: argparse.Namespace) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out.with_suffix(".jsonl"), "w", encoding="utf-8") as fh:
         for r in records:
-            fh.write(json.dumps(r) + "\n")
+            fh.write(dumps(r) + "\n")
     summary = known_optima_summary(annotate(records), slow_s=args.slow)
     machine = machine_info()
     doc = {"machine": machine, "runs": meta, "uptime_at_report": _uptime(),
            "summary": [{"suite": k[0], "set": k[1], "method": k[2], **v} for k, v in summary.items()]}
-    out.with_suffix(".json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    out.with_suffix(".json").write_text(dumps(doc, indent=1) + "\n", encoding="utf-8")
     print("\n".join(known_optima_lines(summary)))
 
 

@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.models import installed_backends  # noqa: E402
 from l3gs_opt.pipeline.synth import synth_instance  # noqa: E402
 
@@ -50,7 +51,7 @@ def main() -> int:
                    "instance_meta": dict(instance.meta), "machine": machine_info(),
                    "loadavg_after": os.getloadavg(), **sol.to_dict()}
             rec.pop("arrivals")
-            fh.write(json.dumps(rec) + "\n")
+            fh.write(dumps(rec) + "\n")
             fh.flush()
     write_markdown(path, out / "models_j20_l4_t60.md")
     return 0

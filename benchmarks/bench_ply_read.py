@@ -27,6 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 
 import numpy  # noqa: E402
 from importlib.metadata import version  # noqa: E402
@@ -123,7 +124,7 @@ def main(argv=None) -> int:
               "splats": args.splats, "file_bytes": size, "repeats": args.repeats, "rows": rows,
               "same_arrays": len(sums) == 1}
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "ply_read.json").write_text(json.dumps(result, indent=1))
+    (OUT / "ply_read.json").write_text(dumps(result, indent=1))
     m = result["machine"]
     lines = ["# PLY read and write at 1 M splats", "",
              f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {numpy.__version__}, gsply "

@@ -39,6 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt.pipeline.build import DEFAULT, QUICK, build_bundle  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.renderer.metrics import psnr, ssim  # noqa: E402
 from l3gs_opt.renderer.render import render_scene  # noqa: E402
 from l3gs_opt.renderer.train import TRAIN_THREADS, threads  # noqa: E402
@@ -169,7 +170,7 @@ def _write(result: dict, args) -> int:
     result["loadavg_at_end"] = list(os.getloadavg())
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float))
+    out.with_suffix(".json").write_text(dumps(result, indent=1))
     out.with_suffix(".md").write_text(_markdown(result))
     print(_markdown(result))
     return 0

@@ -16,7 +16,6 @@ camera: the first orbit view (70 degree horizontal field of view).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -26,6 +25,7 @@ from pathlib import Path
 import torch
 
 from l3gs_opt.scene.camera_paths import orbit_path
+from l3gs_opt.jsonout import dumps
 from l3gs_opt.renderer import render_gaussians, scene_tensors
 from l3gs_opt.renderer._dense import _rasterize_dense
 from l3gs_opt.renderer._kernels import HAVE_NUMBA
@@ -160,7 +160,7 @@ def main(argv=None):
         res["runs"].append(run)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(res, indent=1))
+    out.with_suffix(".json").write_text(dumps(res, indent=1))
     out.with_suffix(".md").write_text(to_markdown(res))
     print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.md')}")
 

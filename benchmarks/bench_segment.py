@@ -13,7 +13,6 @@ Writes ``benchmarks/results/segmentation.json`` and ``segmentation.md``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -23,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt.scene.procedural import make_scene  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.scene.segment import adjusted_rand_index, segment_labels  # noqa: E402
 
 OUT = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
             print(rows[-1], flush=True)
     m = machine_info()
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "segmentation.json").write_text(json.dumps({"machine": m, "rows": rows}, indent=1))
+    (OUT / "segmentation.json").write_text(dumps({"machine": m, "rows": rows}, indent=1))
     lines = ["# Segmentation without ids, against the procedural room's 14 true objects", "",
              f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; 1-minute load in the table "
              "(shared machine). Adjusted Rand index (ARI) of the found objects against the true ones.", "",

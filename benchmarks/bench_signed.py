@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.bench.suites import split_method, suite_specs  # noqa: E402
 
 EXACT_METHODS = ["exact", "ilp/highs", "ilp/cbc", "ilp/cpsat"]
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> None:
                            "loadavg_after": os.getloadavg(), "time_limit_s": args.time_limit, "machine": machine,
                            "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **sol.to_dict()}
                     rec.pop("arrivals")
-                    fh.write(json.dumps(rec, default=float) + "\n")
+                    fh.write(dumps(rec) + "\n")
                     fh.flush()
                     print(spec.instance_id, form, label, rec["status"], rec["objective"], rec["bound"], rec["gap"],
                           f"{rec['runtime_s']:.1f}s", flush=True)
@@ -132,7 +133,7 @@ def report(args: argparse.Namespace) -> None:
     fig.tight_layout()
     fig.savefig(out / "signed_gap_vs_time.png", dpi=110)
     plt.close(fig)
-    (out / "signed_summary.json").write_text(json.dumps(summary, indent=1))
+    (out / "signed_summary.json").write_text(dumps(summary, indent=1))
     (out / "signed.md").write_text("\n".join(lines) + "\n\n![gap against time](signed_gap_vs_time.png)\n")
     print(f"wrote {out / 'signed.md'}")
 

@@ -27,6 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 
 LAYERED = ("l3gs", "l3gs-noseg", "sort", "preload", "rolling:bb", "rolling-future:bb", "slope", "progressive",
            "static", "mpc:3")
@@ -143,7 +144,7 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     record = {"machine": machine, "slots": args.slots, "mbps": mbps, "trace": info,
               "config": dataclasses.asdict(config), "warm_cache": args.warm_cache, "runs": rows}
-    (out / "simulate.json").write_text(json.dumps(record, indent=1, default=str))
+    (out / "simulate.json").write_text(dumps(record, indent=1, other=str))
     write_markdown(record, out / "simulate.md")
     print(f"wrote {out / 'simulate.md'}")
     return 0

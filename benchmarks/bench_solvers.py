@@ -44,6 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.errors import SolveError  # noqa: E402
 from l3gs_opt.problem.instance import Instance  # noqa: E402
 from l3gs_opt.pipeline.synth import synth_instance  # noqa: E402
@@ -263,7 +264,7 @@ def write_report(jsonl: Path, out: Path, machine: dict) -> None:
     recs = [json.loads(line) for line in jsonl.read_text().splitlines() if line.strip()]
     summary = summarise(recs)
     summary["machine"] = machine
-    (out / "solvers_summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    (out / "solvers_summary.json").write_text(dumps(summary, indent=1, other=str))
     lines = ["# Single-slot MCKP solvers vs MILP backends", "",
              "Written by `benchmarks/bench_solvers.py` from `solvers_runs.jsonl` (every run, with the 1-minute "
              "load average at its start). Times are `Solution.runtime_s` (model build + solve, before the "
@@ -343,7 +344,7 @@ def main() -> int:
                 if args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes:
                     break
                 rec = execute(run, time_limit)
-                fh.write(json.dumps(rec, default=float) + "\n")
+                fh.write(dumps(rec) + "\n")
                 fh.flush()
     if args.quick:
         # The quick report goes to solvers_quick.md so it never overwrites the full one.

@@ -26,6 +26,7 @@ from bench_exact import bench_instance  # noqa: E402
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve, stop  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.bench.suites import paper_spec  # noqa: E402
 
 #: (method, backend, J, seed, budget, seconds until the request, time limit)
@@ -83,7 +84,7 @@ def main() -> int:
              "| status | gap | message |", "|---|---|---|---|---|---|---|---|---|---|", *rows]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    out.with_suffix(".jsonl").write_text("".join(json.dumps(r, default=float) + "\n" for r in records), encoding="utf-8")
+    out.with_suffix(".jsonl").write_text("".join(dumps(r) + "\n" for r in records), encoding="utf-8")
     return 0
 
 

@@ -37,6 +37,7 @@ from bench_solvers import make_instance  # noqa: E402
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt import solve  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.solvers import _mckp  # noqa: E402
 from l3gs_opt.solvers.mckp import slot_table  # noqa: E402
 
@@ -124,7 +125,7 @@ def main() -> int:
         entry["ab"] = compare(args.against, SPOT + [("strong", 1000, 10)], seeds, args.repeat)
     data[args.label] = entry
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(data, indent=1, default=float))
+    out.write_text(dumps(data, indent=1))
     print(f"wrote {out} [{args.label}]")
     return 0
 

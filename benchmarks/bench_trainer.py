@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import sys
 import time
@@ -34,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt.scene.bundle import read_bundle  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.scene.camera_paths import orbit_path  # noqa: E402
 from l3gs_opt.renderer.metrics import psnr, ssim  # noqa: E402
 from l3gs_opt.renderer.render import render_scene  # noqa: E402
@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     results["total_seconds"] = round(time.perf_counter() - t_all, 2)
     results["loadavg_at_end"] = list(os.getloadavg())
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(results, indent=1, default=float))
+    out.with_suffix(".json").write_text(dumps(results, indent=1))
     import matplotlib
 
     matplotlib.use("Agg")

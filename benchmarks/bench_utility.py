@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import sys
 import time
@@ -29,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import machine_info  # noqa: E402
 
 from l3gs_opt.scene.camera_paths import walk_path  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.renderer.projection import project_gaussians  # noqa: E402
 from l3gs_opt.scene.procedural import make_scene  # noqa: E402
 from l3gs_opt.pipeline.splat_utility import (UtilityScene, build_utility_table, grid_positions,  # noqa: E402
@@ -183,7 +183,7 @@ def main() -> int:
     path = out / ("utility_quick.json" if args.quick else "utility.json")
 
     def save() -> None:  # after each step: a long run interrupted keeps what it measured
-        path.write_text(json.dumps(result, indent=2) + "\n")
+        path.write_text(dumps(result, indent=2) + "\n")
 
     result["speed"] = _speed(scene, cams, torch_repeats=5)
     save()

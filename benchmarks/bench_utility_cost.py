@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import statistics
 import sys
@@ -32,6 +31,7 @@ from machine import machine_info  # noqa: E402
 
 from l3gs_opt.pipeline.utilities import (CoverageUtility, Eq1Utility, VisibilityUtility,  # noqa: E402
                                          get_utility)
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.scene.camera_paths import orbit_path  # noqa: E402
 from l3gs_opt.scene.procedural import make_scene  # noqa: E402
 
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     result = {"machine": info, "splats": args.splats, "camera": [args.width, args.height], "rows": rows}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
+    out.with_suffix(".json").write_text(dumps(result, indent=1) + "\n")
     m = info
     lines = [f"# Splat utility cost per viewpoint ({args.splats} splats, {args.width}x{args.height} camera)", "",
              f"Machine: {m['cores']} cores, {m['cpu']}; Python {m['python']}, numpy {m['packages'].get('numpy')}, "

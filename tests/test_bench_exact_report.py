@@ -52,3 +52,12 @@ def test_claimed_optimum_below_a_known_schedule_is_wrong_not_proven(bench):
 def test_seed_group(bench):
     assert [bench._seed_group({"params": {"seed": s}}) for s in (0, 4, 5, 9, 10)] == ["0-4", "0-4", "5-9", "5-9",
                                                                                       "10-14"]
+
+
+def test_trace_gap_waits_for_a_finite_positive_bound(bench):
+    """Trace points before the first bound hold null (strict JSON) or, in older files, Infinity: no gap."""
+    assert bench.trace_gap([0.1, 90.0, None], 1e-9) is None
+    assert bench.trace_gap([0.1, 90.0, float("inf")], 1e-9) is None
+    assert bench.trace_gap([0.1, -5.0, 0.0], 1e-9) is None
+    assert bench.trace_gap([0.2, 90.0, 100.0], 1e-9) == pytest.approx(0.1)
+    assert bench.trace_gap([0.3, 100.0, 100.0], 1e-9) == 1e-9
