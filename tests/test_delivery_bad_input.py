@@ -67,6 +67,23 @@ def test_fidelity_negative_seed_is_named(tmp_path):
         utility_fidelity(tmp_path / "none", tmp_path / "none.log", seed=-1)
 
 
+@pytest.mark.parametrize("field, value, high", [("samples", 10_001, 10_000), ("samples_per_slot", 1_001, 1_000),
+                                                ("slots", 10**6 + 1, 10**6), ("width", 16_385, 16_384),
+                                                ("height", 10, 16_384)])
+def test_fidelity_counts_have_upper_limits(tmp_path, field, value, high):
+    """A mistyped count (``--samples 100000000``) rendered for days: refused before the bundle is read."""
+    lo = 11 if field in ("width", "height") else 1
+    with pytest.raises(FidelityError, match=rf"^{field}: {value}: must be an integer in \[{lo}, {high}\]$"):
+        utility_fidelity(tmp_path / "none", tmp_path / "none.log", **{field: value})
+
+
+def test_fidelity_samples_limit_on_the_command_line(capsys, tmp_path):
+    line = one_error_line(capsys, "utility", "check", tmp_path / "none", "--path", tmp_path / "none.log",
+                          "--samples", "100000000", "--out", tmp_path / "o")
+    assert line == "error: samples: 100000000: must be an integer in [1, 10000]", line
+    assert not (tmp_path / "o").exists()
+
+
 # -- 3: a grid of petabytes
 def test_huge_grid_is_refused_before_allocating():
     with pytest.raises(UtilityError, match=r"^counts = \[100000, 100000, 100000\]: .*MAX_GRID_POSITIONS"):

@@ -15,7 +15,7 @@ import numpy as np
 from l3gs_opt.errors import L3gsError
 
 __all__ = ["CountError", "check_count", "MAX_SAMPLES_PER_SLOT", "MAX_SUBSTEPS", "MAX_YAW_STEPS",
-           "MAX_GRID_POSITIONS"]
+           "MAX_GRID_POSITIONS", "MAX_FIDELITY_SAMPLES"]
 
 #: Viewpoints per slot: each is one utility evaluation (and render) per slot; 1000 is a sample every
 #: millisecond of a 1 s slot, finer than any pose log.
@@ -27,6 +27,10 @@ MAX_YAW_STEPS = 3600
 #: Positions of a utility table grid (NX * NY * NZ): each costs ``yaw_steps * len(pitches)``
 #: viewpoint evaluations; 100000 (e.g. 46^3) already takes hours and its table gigabytes.
 MAX_GRID_POSITIONS = 100_000
+#: Sampled (slot, held state) pairs of a fidelity run: each renders the picture of every candidate
+#: chunk (144 on the 180k-splat room, ``benchmarks/results/utility_fidelity``, which used 8 and 16);
+#: 10000 is days of rendering already.
+MAX_FIDELITY_SAMPLES = 10_000
 
 
 class CountError(L3gsError, ValueError):

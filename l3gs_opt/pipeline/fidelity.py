@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from l3gs_opt.errors import L3gsError
+from l3gs_opt.pipeline.counts import MAX_FIDELITY_SAMPLES, MAX_SAMPLES_PER_SLOT, check_count
 from l3gs_opt.pipeline.utilities import ScenePictures, chunk_gains, get_utility
 
 __all__ = ["FidelityError", "FidelityReport", "utility_fidelity", "DEFAULT_FIDELITY_UTILITIES"]
@@ -95,10 +96,16 @@ def utility_fidelity(bundle_path: str | os.PathLike[str], path: str | os.PathLik
     from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING, read_delivery_bundle, viewer_cameras
     from l3gs_opt.traces.poses import PoseMapping
 
-    for name, v, lo in (("samples", samples, 1), ("slots", slots, 1), ("samples_per_slot", samples_per_slot, 1),
-                        ("width", width, 11), ("height", height, 11), ("seed", seed, 0)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise FidelityError(f"{name} = {v!r}: must be an integer >= {lo}")
+    from l3gs_opt.scene.cameras import MAX_IMAGE_SIDE
+    from l3gs_opt.traces.bandwidth import MAX_TRACE_SAMPLES
+
+    # upper limits too: a mistyped count would render for days (width and height >= 11: SSIM's window)
+    for name, v, lo, hi in (("samples", samples, 1, MAX_FIDELITY_SAMPLES), ("slots", slots, 1, MAX_TRACE_SAMPLES),
+                            ("samples_per_slot", samples_per_slot, 1, MAX_SAMPLES_PER_SLOT),
+                            ("width", width, 11, MAX_IMAGE_SIDE), ("height", height, 11, MAX_IMAGE_SIDE)):
+        check_count(name, v, low=lo, high=hi, error=lambda f, m: FidelityError(f"{f}: {m}"))
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise FidelityError(f"seed = {seed!r}: must be an integer >= 0")
     try:
         chosen = [get_utility(u) for u in utilities]
     except L3gsError as exc:
