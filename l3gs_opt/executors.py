@@ -30,7 +30,7 @@ from typing import Any, Callable, Sequence
 
 from l3gs_opt.errors import L3gsError
 
-__all__ = ["EXECUTORS", "WORKER_CORES_ENV", "ExecutorError", "run_tasks", "run_guarded", "usable_cores"]
+__all__ = ["EXECUTORS", "WORKER_CORES_ENV", "ExecutorError", "check_executor", "run_tasks", "run_guarded", "usable_cores"]
 
 EXECUTORS = ("local", "dask")
 #: Environment variable holding a local worker's share of the cores (set in each worker).
@@ -84,6 +84,44 @@ def run_guarded(work: Callable[[Any], Any], task: Any, hard_limit_s: float | Non
         proc.join()
 
 
+def check_executor(executor: str, jobs: int, address: str | None = None) -> None:
+    """Refuse a bad executor request before any work (the CLIs call it before building a plan):
+    an unknown executor, ``jobs`` not an integer >= 0, or an ``address`` that is empty, given to
+    the local executor (where it would be ignored), or not a Dask scheduler address
+    (``[tcp://]host:port``, or another scheme Dask knows).
+
+    Raises
+    ------
+    ExecutorError
+        Naming ``executor``, ``jobs`` or ``address``.
+    """
+    if executor not in EXECUTORS:
+        raise ExecutorError(f"executor {executor!r} is not one of {', '.join(EXECUTORS)}")
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 0:
+        raise ExecutorError(f"jobs = {jobs!r}: must be an integer >= 0")
+    if address is None:
+        return
+    if executor != "dask":
+        raise ExecutorError(f"address {address!r}: only the dask executor uses a scheduler address")
+    if not address.strip():
+        raise ExecutorError("address '': empty (leave it out for a local Dask cluster)")
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port
+        from distributed.comm.registry import get_backend
+    except ImportError:
+        return   # (the dask executor itself says what to install)
+    try:   # Dask's own parsers: what they refuse here would be a traceback from Client() later
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme in ("tcp", "tls"):
+            _, port = parse_host_port(location)
+            if not 0 < int(port) < 65536:
+                raise ValueError(f"port {port} is not in 1..65535")
+    except (ValueError, TypeError) as exc:
+        raise ExecutorError(f"address {address!r}: not a Dask scheduler address ({exc}; e.g. "
+                            "tcp://127.0.0.1:8786)") from None
+
+
 def run_tasks(todo: Sequence[Any], work: Callable[[Any], Any], write: Callable[[Any, Any], None], *,
               jobs: int = 1, executor: str = "local", address: str | None = None,
               hard_limit_s: float | None = None, failed: Callable[[Any, float, str], Any],
@@ -94,12 +132,9 @@ def run_tasks(todo: Sequence[Any], work: Callable[[Any], Any], write: Callable[[
     Raises
     ------
     ExecutorError
-        Unknown executor, ``jobs < 0``, or ``dask`` without the ``distributed`` package.
+        A request :func:`check_executor` refuses, or ``dask`` without the ``distributed`` package.
     """
-    if executor not in EXECUTORS:
-        raise ExecutorError(f"executor {executor!r} is not one of {', '.join(EXECUTORS)}")
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 0:
-        raise ExecutorError(f"jobs = {jobs!r}: must be an integer >= 0")
+    check_executor(executor, jobs, address)
     if start_method not in ("fork", "spawn"):
         raise ExecutorError(f"start_method {start_method!r} is not one of fork, spawn")
     if jobs == 0:

@@ -36,7 +36,7 @@ from l3gs_opt.pipeline.synth import synth_instance
 from l3gs_opt.traces.bandwidth import bundled_traces, mbps_to_bytes, read_bandwidth_trace
 
 __all__ = ["InstanceSpec", "SUITES", "ALL_SUITES", "suite_specs", "paper_spec", "default_methods", "split_method",
-           "knapsack_dir", "KNAPSACK_DIR_ENV"]
+           "knapsack_dir", "KNAPSACK_DIR_ENV", "MAX_SEEDS"]
 
 #: The whole L3GS-like slot budget: one second at the paper's 11.8 Mbit/s.
 SLOT_BYTES = int(mbps_to_bytes(np.array([11.8]))[0])
@@ -244,6 +244,11 @@ def _window_start(trace: str, offset: int, slots: int) -> int:
     """``offset`` (seconds into ``trace``) wrapped so that the window of ``slots`` samples fits:
     every seed gets an instance, and a seed whose window fits as it is keeps it."""
     return offset % max(_trace_samples(trace) - slots + 1, 1)
+
+
+#: Seeds per size a bench run may ask for: a paper-scale record takes up to its time limit (60 s) per
+#: method, so 1000 seeds of one size and method are most of a day already.
+MAX_SEEDS = 1000
 
 
 def suite_specs(suite: str, *, sizes: list[int] | None = None, seeds: int = 3, quick: bool = False) -> list[InstanceSpec]:

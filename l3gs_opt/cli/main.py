@@ -102,7 +102,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from l3gs_opt.cli.demo import run_demo
+    from l3gs_opt.errors import SolveError
+    from l3gs_opt.methods import check_time_limit
 
+    # before the first step (the quick benchmark took a negative limit and ran 439 records first)
+    if check_time_limit(args.time_limit, name="--time-limit") is None:
+        raise SolveError("--time-limit: inf: the demo needs a finite limit (it runs every ILP backend with it)")
     return run_demo(out_dir=Path(args.out), time_limit_s=args.time_limit, bench=not args.no_bench,
                     scene=not args.no_scene, experiments=not args.no_experiments)
 
@@ -122,13 +127,17 @@ def _check_methods(methods: list[str] | None) -> None:
 
     if methods is not None and not methods:   # "--methods ," must not mean "every method"
         raise BenchError("--methods", "names no method (expected comma-separated labels, e.g. ilp/highs,bb)")
-    for m in methods or []:
+    for i, m in enumerate(methods or []):
         check_label(m)
+        if m in methods[:i]:   # its records would share one record_id and count twice in the report
+            raise BenchError("--methods", f"{m!r} is named twice", i)
 
 
 def _check_bench_args(args: argparse.Namespace) -> list[int] | None:
-    """``--sizes`` (checked), after checking ``--seeds`` and that ``--out`` is no file."""
+    """``--sizes`` (checked), after checking ``--seeds``, the executor and that ``--out`` is no file."""
     from l3gs_opt.bench.run import BenchError
+    from l3gs_opt.bench.suites import MAX_SEEDS
+    from l3gs_opt.executors import check_executor
 
     if args.sizes is not None:
         if not args.sizes:
@@ -136,8 +145,11 @@ def _check_bench_args(args: argparse.Namespace) -> list[int] | None:
         for i, size in enumerate(args.sizes):
             if size < 1:
                 raise BenchError("--sizes", f"= {size}: an object count must be >= 1", i)
-    if args.seeds is not None and args.seeds < 1:
-        raise BenchError("--seeds", f"= {args.seeds}: must be >= 1 seed per size")
+            if size in args.sizes[:i]:
+                raise BenchError("--sizes", f"= {size}: named twice", i)
+    if args.seeds is not None and not 1 <= args.seeds <= MAX_SEEDS:
+        raise BenchError("--seeds", f"= {args.seeds}: must be 1..{MAX_SEEDS} seeds per size (MAX_SEEDS)")
+    check_executor(args.executor, args.jobs, args.address)
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise BenchError("--out", f"{args.out} is a file: expected a folder (for results.jsonl and report.md)")
     return args.sizes
@@ -384,9 +396,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Options that name where a command writes: an empty one would mean the current folder.
+OUTPUT_OPTIONS = ("out", "output", "cache")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    for dest in OUTPUT_OPTIONS:
+        value = getattr(args, dest, None)
+        if isinstance(value, str) and not value.strip():
+            print(f"error: --{dest}: empty: name a path ('.' for the current folder)", file=sys.stderr)
+            return 2
     shown = warnings.showwarning
     warnings.showwarning = _one_line_warning
     try:

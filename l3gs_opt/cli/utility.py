@@ -57,6 +57,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from l3gs_opt.pipeline.fidelity import utility_fidelity
 
     names = [n.strip() for n in args.utilities.split(",") if n.strip()]
+    twice = [n for i, n in enumerate(names) if n in names[:i]]
+    if twice:   # each would be measured twice and shown as two rows
+        from l3gs_opt.pipeline.fidelity import FidelityError
+
+        raise FidelityError(f"--utilities: {twice[0]!r} is named twice")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         from l3gs_opt.pipeline.fidelity import FidelityError
