@@ -14,15 +14,58 @@ from pathlib import Path
 __all__ = ["register"]
 
 
-def _list(text: str | None) -> list[str] | None:
+def _list(text: str | None, option: str, what: str) -> list[str] | None:
+    """The comma-separated names of ``option``; None when it is not given. An empty list is refused
+    rather than read as "the default" or "none": an empty shell variable must not change the plan."""
+    from l3gs_opt.experiments.plan import ExperimentError
+
     if text is None:
         return None
-    return [part.strip() for part in text.split(",") if part.strip()]
+    parts = [part.strip() for part in text.split(",")]
+    if not any(parts):
+        raise ExperimentError(option, f"{text!r}: names no {what}")
+    for i, part in enumerate(parts):
+        if not part:
+            raise ExperimentError(option, f"{text!r}: an empty {what} name (a comma too many?)", i)
+    return parts
+
+
+def _sizes(text: str | None) -> tuple[int, ...] | None:
+    from l3gs_opt.experiments.plan import ExperimentError
+
+    names = _list(text, "--sizes", "size")
+    if names is None:
+        return None
+    out = []
+    for i, v in enumerate(names):
+        try:
+            out.append(int(v))
+        except ValueError:
+            raise ExperimentError("--sizes", f"{v!r}: expected a whole number of splats", i) from None
+    return tuple(out)
+
+
+def _check_runs(path: Path) -> None:
+    """Refuse a runs file without experiment records: the report of one would say "0 simulations"
+    and look like a finished run."""
+    from l3gs_opt.experiments.plan import ExperimentError
+    from l3gs_opt.records import read_records
+
+    records = read_records(path)
+    if not records:
+        raise ExperimentError("--out", f"{path}: holds no records (expected the runs.jsonl of l3gs-opt experiments)")
+    # read_records skips blank lines: number the others to name the line of a stray record.
+    numbers = [n for n, line in enumerate(path.read_bytes().split(b"\n"), start=1) if line.strip()]
+    for number, rec in zip(numbers, records):
+        if rec.get("kind") not in ("sim", "ceiling") or not isinstance(rec.get("record_id"), str):
+            raise ExperimentError("--out", f"{path}: line {number} is not an experiment record (kind "
+                                           f"{rec.get('kind')!r}; expected the runs.jsonl of l3gs-opt experiments)")
 
 
 def _cmd_experiments(args: argparse.Namespace) -> int:
     from l3gs_opt.experiments.plan import RUNS_FILE, ExperimentError, SceneSpec, make_plan
     from l3gs_opt.experiments.run import plan_fidelity, run_experiments
+    from l3gs_opt.executors import check_executor
     from l3gs_opt.experiments.report import write_report
 
     out = Path(args.out)
@@ -32,33 +75,40 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     if args.report_only:
         if not (out / RUNS_FILE).exists():
             raise ExperimentError("--out", f"{out / RUNS_FILE}: no such results file (run without --report-only first)")
+        _check_runs(out / RUNS_FILE)
         print(f"report: {write_report(out / RUNS_FILE, out)}")
         return 0
     traces = args.traces
-    if traces is not None and not Path(traces).is_dir():
-        traces = _list(traces)
+    # Path("") is the current folder: an empty --traces must not read it as a folder of traces.
+    if traces is not None and not (traces.strip() and Path(traces).is_dir()):
+        traces = _list(traces, "--traces", "trace")
+    lists = {name: _list(getattr(args, name), "--" + name.replace("_", "-"), what)
+             for name, what in (("variants", "variant"), ("paths", "path"), ("methods", "method"),
+                                ("ablations", "condition"), ("ablation_methods", "method"), ("utilities", "utility"))
+             if not (name == "ablations" and args.ablations is not None and args.ablations.strip() == "none")}
+    if "ablations" not in lists:   # the one way to ask for no ablations (an empty list is refused)
+        lists["ablations"] = []
+    check_executor(args.executor, args.jobs, args.address)   # before the plan builds anything
+    sizes = _sizes(args.sizes)
     scenes = None
-    if args.splats is not None or args.objects is not None or args.room_parts or args.sizes or args.sh_degree != 1:
+    if args.splats is not None or args.objects is not None or args.room_parts or sizes or args.sh_degree != 1:
         splats = args.splats if args.splats is not None else (8000 if args.quick else 20_000)
         if splats < 1000:
             raise ExperimentError("--splats", f"{splats}: must be >= 1000")
         objects = args.objects if args.objects is not None else 4
         if not 1 <= objects <= 12:
             raise ExperimentError("--objects", f"{objects}: must be in 1..12")
-        # The name keys the bundle cache: a different segmentation is a different scene.
-        sizes = tuple(int(v) for v in _list(args.sizes)) if args.sizes else ()
         if args.sh_degree not in (0, 1, 2, 3):
             raise ExperimentError("--sh-degree", f"{args.sh_degree}: must be 0, 1, 2 or 3")
+        # The name keys the bundle cache: a different segmentation is a different scene.
         name = f"room{splats // 1000}k" + (f"-o{objects}" if objects != 4 else "") + \
             ("-parts" if args.room_parts else "") + (f"-sh{args.sh_degree}" if args.sh_degree != 1 else "") + \
             ("-L" + "-".join(str(v // 1000) + "k" for v in sizes) if sizes else "")
         scenes = [SceneSpec(name, splats, objects=objects, sh_degree=args.sh_degree, seed=0, room_parts=args.room_parts,
-                            sizes=sizes)]
-    plan = make_plan(quick=args.quick, scenes=scenes, variants=_list(args.variants), traces=traces,
-                     starts=args.starts, window_s=args.window, paths=_list(args.paths), methods=_list(args.methods),
-                     ablations=_list(args.ablations), ablation_methods=_list(args.ablation_methods),
+                            sizes=sizes or ())]
+    plan = make_plan(quick=args.quick, scenes=scenes, traces=traces, starts=args.starts, window_s=args.window,
                      width=args.width, height=args.height, ceiling_time_limit_s=args.time_limit,
-                     ceiling_check_s=args.check_time, seed=args.seed, utilities=_list(args.utilities))
+                     ceiling_check_s=args.check_time, seed=args.seed, **lists)
     n = len(plan.tasks())
     load = os.getloadavg()[0]
     print(f"plan: {n} records ({len(plan.scenes)} scene(s), {len(plan.windows())} window(s), {len(plan.paths)} "
@@ -108,7 +158,8 @@ def register(subparsers) -> None:
     p.add_argument("--methods", default=None, help="comma-separated simulator methods (default: every one of "
                                                    "l3gs-opt simulate, each on its bundle)")
     p.add_argument("--ablations", default=None,
-                   help="conditions: true_bandwidth, true_viewport, true_both, nofill, nofill_true_... (default all)")
+                   help="conditions: true_bandwidth, true_viewport, true_both, nofill, nofill_true_... (default all; "
+                        "'none': no ablations)")
     p.add_argument("--ablation-methods", default=None,
                    help="methods run under the ablations (default: l3gs; full runs: every predicting method)")
     p.add_argument("--splats", type=int, default=None, help="one room of this many splats instead of the default")

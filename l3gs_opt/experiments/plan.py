@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -506,14 +507,25 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
         raise ExperimentError("ceiling_time_limit_s", f"{ceiling_time_limit_s!r}: must be a positive number of seconds")
     if ceiling_check_s is None:
         ceiling_check_s = 3.0 if quick else 10.0
-    if not (isinstance(ceiling_check_s, (int, float)) and ceiling_check_s >= 0):
-        raise ExperimentError("ceiling_check_s", f"{ceiling_check_s!r}: must be a number of seconds >= 0")
+    # Finite: the help documents no "inf = no limit", and one unbounded check could run for hours.
+    if not (isinstance(ceiling_check_s, (int, float)) and math.isfinite(ceiling_check_s) and ceiling_check_s >= 0):
+        raise ExperimentError("ceiling_check_s", f"{ceiling_check_s!r}: must be a finite number of seconds >= 0")
     if schedule is None:
         schedule = QUICK
     if isinstance(schedule, BuildSchedule):
         schedule = dataclasses.asdict(schedule)
     w = width if width is not None else (128 if quick else 160)
     h = height if height is not None else (96 if quick else 120)
+    # The cameras' limits, checked here: the cameras are made only after the bundles are built.
+    # >= 11: SSIM's window, as SimConfig and the fidelity check require.
+    from l3gs_opt.pipeline.counts import check_count
+    from l3gs_opt.scene.cameras import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
+
+    w = check_count("width", w, low=11, high=MAX_IMAGE_SIDE, error=ExperimentError)
+    h = check_count("height", h, low=11, high=MAX_IMAGE_SIDE, error=ExperimentError)
+    if w * h > MAX_IMAGE_PIXELS:
+        raise ExperimentError("width", f"{w} x {h} = {w * h:,} pixels, more than {MAX_IMAGE_PIXELS:,} "
+                                       "(MAX_IMAGE_PIXELS)")
     chosen_utilities = tuple(utilities) if utilities is not None else (DEFAULT_UTILITY,)
     if not chosen_utilities or len(set(chosen_utilities)) != len(chosen_utilities):
         raise ExperimentError("utilities", "need at least one utility, each once")
