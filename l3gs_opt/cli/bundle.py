@@ -13,8 +13,13 @@ __all__ = ["register", "stream_summary"]
 
 
 def _cmd_bundle_export(args: argparse.Namespace) -> int:
-    from l3gs_opt.scene.stream_index import export_stream, read_stream
+    from pathlib import Path
 
+    from l3gs_opt.scene.stream_index import StreamError, export_stream, read_stream
+
+    # Re-exporting into an export folder rewrites it (intended); a bundle's folder would lose its chunk files.
+    if (Path(args.out) / "manifest.json").exists() and Path(args.out).resolve() != Path(args.bundle).resolve():
+        raise StreamError("--out", f"{args.out} holds a bundle (manifest.json): export to a new or empty folder")
     path = export_stream(args.bundle, args.out, pack=args.pack, alignment=args.align)
     index = read_stream(path)  # what a client will read: checked before we say "wrote"
     print(f"wrote {path}: {len(index.chunks)} chunks, {index.total_bytes} bytes in {len(index.filenames)} "

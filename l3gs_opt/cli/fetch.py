@@ -20,13 +20,17 @@ def _cmd_fetch(args: argparse.Namespace) -> int:
     from l3gs_opt.simulator.simulation import SimConfig
     from l3gs_opt.traces.poses import PoseMapping
 
-    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
+    if Path(args.out).exists() and not Path(args.out).is_dir():
         raise FetchError("--out", f"{args.out} is a file: expected a folder")
+    if args.path_rate is not None and args.path_format != "cameras":
+        raise FetchError("--path-rate", f"{args.path_rate!r}: only --path-format cameras reads it, not "
+                                        f"{args.path_format!r}")
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
                        bandwidth_predictor=args.bandwidth_predictor, utility=args.utility, carry=args.carry)
     mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
-    poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=args.path_rate)
+    rate = 30.0 if args.path_rate is None else args.path_rate
+    poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=rate)
     result = fetch(args.url, args.trace, poses, args.method, args.out, slots=args.slots, resume=args.resume,
                    config=config, solver=args.solver, mbps=args.mbps, start=args.start,
                    trace_format=args.trace_format, mapping=mapping, reference=args.teacher,
@@ -47,10 +51,16 @@ def _cmd_fetch(args: argparse.Namespace) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from l3gs_opt.delivery.server import run_server
+    from l3gs_opt.delivery.server import ServerError, run_server
     from l3gs_opt.delivery.shaping import trace_shaper
 
-    trace = None if args.trace is None else trace_shaper(args.trace, mbps=args.mbps, format=args.trace_format)
+    if args.trace is None:
+        # Both only shape a trace: without one they would be taken and do nothing.
+        for flag, value in (("--mbps", args.mbps), ("--trace-format", args.trace_format)):
+            if value is not None:
+                raise ServerError(flag, f"{value!r}: needs --trace (without one the server does not pace)")
+    trace = None if args.trace is None else trace_shaper(args.trace, mbps=args.mbps,
+                                                         format=args.trace_format or "auto")
     print(f"serving {args.folder} on http://{args.host}:{args.port}"
           + ("" if trace is None else f", paced to {args.trace}") + " (Ctrl-C stops)", flush=True)
     run_server(args.folder, host=args.host, port=args.port, trace=trace,
@@ -73,13 +83,14 @@ def register(subparsers) -> None:
     p.add_argument("--start", type=int, default=0, help="first second of the trace window")
     p.add_argument("--path", required=True, help="the viewer's path (as for simulate)")
     p.add_argument("--path-format", default="log", choices=list(PATH_FORMATS))
-    p.add_argument("--path-rate", type=float, default=30.0, help="--path-format cameras: matrices per second")
+    p.add_argument("--path-rate", type=float, default=None,
+                   help="--path-format cameras: matrices per second (default 30)")
     p.add_argument("--up", default="z", choices=["z", "y"], help="the scene's up axis (default z)")
     p.add_argument("--method", required=True, help=f"{', '.join(SIM_METHODS)}, or a solver method")
     p.add_argument("--solver", default=None, help="as for simulate")
     p.add_argument("--out", required=True, help="folder for slots.jsonl, summary.jsonl and the received bytes")
     p.add_argument("--slots", type=int, default=60, help="slots to run, each slot-s seconds of real time")
-    p.add_argument("--slot-s", type=float, default=1.0)
+    p.add_argument("--slot-s", type=float, default=1.0, help="slot length, seconds (at least 0.01: wall-clock time)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted fetch into --out")
     p.add_argument("--catalogue", default="full", choices=["full", "tables"],
                    help="what the client knows before slot 0: full (the whole bundle, read unpaced: any utility, as "
@@ -87,7 +98,7 @@ def register(subparsers) -> None:
                         "'l3gs-opt bundle tables'; renders only what arrived)")
     p.add_argument("--retry-s", type=float, default=30.0,
                    help="seconds a transfer retries a lost connection (a server restart) without a byte before "
-                        "the fetch fails")
+                        "the fetch fails (at most 3600)")
     p.add_argument("--budget", default="per_slot", choices=["per_slot", "cumulative"])
     p.add_argument("--carry", default="started", choices=["started", "head"],
                    help="at a slot's cut: abort a request with no byte yet (default), or keep the first one open "
@@ -107,11 +118,14 @@ def register(subparsers) -> None:
     s = subparsers.add_parser("serve", help="serve a stream export (bundle export) over HTTP with Range "
                                             "requests, optionally paced to a bandwidth trace")
     s.add_argument("folder", help="stream export folder (holding index.json)")
-    s.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback only)")
+    s.add_argument("--host", default="127.0.0.1",
+                   help="loopback address to bind (127.0.0.0/8, ::1 or localhost; default 127.0.0.1): the server "
+                        "is for local viewing and tests, other addresses are refused")
     s.add_argument("--port", type=int, default=8000)
     s.add_argument("--trace", default=None, help="pace each client session to this trace (name or file)")
-    s.add_argument("--trace-format", default="auto", choices=["auto", "lumos", "mahimahi", "pensieve"])
-    s.add_argument("--mbps", type=float, default=None, help="scale the trace to this mean (Mbit/s)")
+    s.add_argument("--trace-format", default=None, choices=["auto", "lumos", "mahimahi", "pensieve"],
+                   help="with --trace (default auto)")
+    s.add_argument("--mbps", type=float, default=None, help="with --trace: scale it to this mean (Mbit/s)")
     s.add_argument("--no-anonymous-pacing", action="store_true",
                    help="do not pace requests without an X-L3gs-Client name (e.g. a fetch's catalogue)")
     s.set_defaults(func=_cmd_serve)

@@ -81,7 +81,7 @@ from l3gs_opt.simulator.client import Client
 from l3gs_opt.simulator.config import SimConfig
 
 __all__ = ["FetchError", "unit_chunks", "HttpLink", "fetch", "FETCH_DIR", "REQUEST_TIMEOUT_S", "RETRY_S",
-           "CATALOGUES"]
+           "MAX_RETRY_S", "MIN_SLOT_S", "CATALOGUES"]
 
 FETCH_DIR = "fetched"
 #: Seconds to wait for the index or a catalogue chunk, and for a connection to open.
@@ -90,6 +90,12 @@ REQUEST_TIMEOUT_S = 60.0
 #: connection) without receiving a byte, before the fetch fails. Retries start 0.1 s apart and back
 #: off to 2 s; each resumes the chunk from the first byte not yet received (a Range request).
 RETRY_S = 30.0
+#: Largest ``retry_s`` (seconds): a server restart takes seconds; a longer wait is a typo that would
+#: leave a fetch hanging (for years at 1e12) instead of failing.
+MAX_RETRY_S = 3600.0
+#: Shortest slot (seconds): a slot is wall-clock time, cut by a sleeping thread; below 10 ms the cut
+#: is lost in timer and scheduling jitter (and the server's default burst is 1 % of a 1 s slot).
+MIN_SLOT_S = 0.01
 _RETRY_FIRST_S, _RETRY_MAX_S = 0.1, 2.0
 _READ_BYTES = 64 * 1024
 
@@ -464,6 +470,19 @@ def _check_received(index: StreamIndex, catalogue: Optional[dict], store: _Store
                 load_stream_chunk(index, c, have)
 
 
+def _check_out(out: Path) -> None:
+    """Refuse an ``out`` folder that is not a fetch's (new, empty, or a previous fetch's output):
+    the records and the fetched index would be written over a bundle's or an export's files."""
+    if out.exists() and not out.is_dir():
+        raise FetchError("out", f"{out} is a file: expected a folder")
+    if (out / "manifest.json").exists():
+        raise FetchError("out", f"{out} holds a bundle (manifest.json): fetch into a new or empty folder")
+    # A previous fetch's folder holds its index.json next to FETCH_DIR (made first: see fetch()).
+    if (out / INDEX_NAME).exists() and not (out / FETCH_DIR).is_dir():
+        raise FetchError("out", f"{out} holds a stream export ({INDEX_NAME}) that is not a fetch's: fetch into a new "
+                                "or empty folder")
+
+
 def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60, resume: bool = False,
           config: SimConfig = SimConfig(), solver: Optional[str] = None, mbps: Optional[float] = None,
           start: int = 0, trace_format: str = "auto", mapping=None, reference=None, client: Optional[str] = None,
@@ -509,7 +528,9 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
     Raises
     ------
     FetchError
-        Bad URL or answers, bytes that do not match, ``resume`` without ``out_dir`` or with another index.
+        Bad URL or answers, bytes that do not match, ``resume`` without ``out_dir`` or with another index, a
+        ``slot_s`` below :data:`MIN_SLOT_S`, a ``retry_s`` above :data:`MAX_RETRY_S`, a trace window of 0 bytes,
+        an ``out_dir`` that holds a bundle or a stream export other than a previous fetch's.
     SimulationError, StreamError, TraceError
         As ``simulate`` raises them.
     """
@@ -531,11 +552,24 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
         raise FetchError("resume", "needs out_dir (the folder of the interrupted fetch)")
     if not isinstance(url, str) or not url.startswith(("http://", "https://")):
         raise FetchError("url", f"{url!r}: expected http://HOST:PORT")
+    if not config.slot_s >= MIN_SLOT_S:
+        raise FetchError("slot_s", f"{config.slot_s!r}: must be at least {MIN_SLOT_S} s (MIN_SLOT_S): a fetch slot "
+                                   "is wall-clock time")
+    if not (isinstance(retry_s, (int, float)) and 0 <= retry_s <= MAX_RETRY_S):
+        raise FetchError("retry_s", f"{retry_s!r}: expected seconds in [0, {MAX_RETRY_S:g}] (MAX_RETRY_S)")
+    if isinstance(out_dir, str) and not out_dir.strip():   # Path("") is the current folder
+        raise FetchError("out", f"{out_dir!r} is not a folder name")
     out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        _check_out(out)
     bandwidth, info = trace_bytes(trace, mbps=mbps, start=start, slots=slots, slot_s=config.slot_s,
                                   format=trace_format)
-    if not (isinstance(retry_s, (int, float)) and 0 <= retry_s < float("inf")):
-        raise FetchError("retry_s", f"{retry_s!r}: expected seconds >= 0")
+    if not np.any(np.asarray(bandwidth) > 0):
+        # As the server's shaper refuses such a trace: the records would divide by nothing.
+        what = "the trace" if mbps is None else f"{mbps!r} Mbit/s"
+        raise FetchError("trace" if mbps is None else "mbps",
+                         f"{what} gives 0 bytes in every one of the {len(bandwidth)} slots of {config.slot_s!r} s "
+                         "(needs at least one slot with bytes > 0)")
     link = HttpLink(url, client=client or f"fetch-{uuid.uuid4().hex[:12]}", retry_s=retry_s)
     try:
         raw = link.get(INDEX_NAME)
@@ -546,7 +580,8 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
             folder = Path(holder.name)
         else:
             holder, folder = None, out
-            folder.mkdir(parents=True, exist_ok=True)
+            # Before index.json: marks the folder as a fetch's, so that a rerun may write into it.
+            (folder / FETCH_DIR).mkdir(parents=True, exist_ok=True)
         index_path = folder / INDEX_NAME
         if resume and index_path.exists() and index_path.read_bytes() != raw:
             raise FetchError("resume", f"the server's {INDEX_NAME} differs from {index_path}: another bundle; "

@@ -50,6 +50,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import hashlib
+import ipaddress
 import logging
 import math
 import os
@@ -344,9 +345,22 @@ class ServerHandle:
         self.stop()
 
 
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def _check_bind(host: str, port: int) -> None:
     if not isinstance(host, str) or not host:
         raise ServerError("host", f"{host!r}: must be a host name or address")
+    # The server has no authentication and no TLS: it is for local viewing and tests, never a network.
+    if not _is_loopback(host):
+        raise ServerError("host", f"{host!r}: only a loopback address is allowed (127.0.0.0/8, ::1 or localhost): "
+                                  "the server is for local viewing and tests")
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
         raise ServerError("port", f"{port!r}: must be a port number in [0, 65535] (0: any free port)")
 
@@ -360,7 +374,7 @@ def start_server(folder, host: str = "127.0.0.1", port: int = 0, trace=None, *,
     folder : path
         A stream export.
     host : str
-        Address to bind (default loopback only).
+        Loopback address to bind (127.0.0.0/8, ``::1`` or ``localhost``; anything else is refused).
     port : int
         Port (0: a free one; read it from ``handle.port``).
     trace : see :func:`make_app`
