@@ -1,4 +1,4 @@
-"""Bad input found by the nineteenth session's sweep of ``bench``, ``demo``, ``utility check`` and the
+"""Bad input found by a sweep (2026-11-27, nineteenth session) of ``bench``, ``demo``, ``utility check`` and the
 executors: each is refused as one line naming the option, exit 2, before any work.
 
 1. a malformed Dask scheduler ``--address`` (a traceback from ``distributed`` before), an empty one
