@@ -19,22 +19,15 @@ from l3gs_opt.pipeline.fidelity import FidelityError, utility_fidelity
 from l3gs_opt.pipeline.scene_instance import viewer_cameras
 from l3gs_opt.pipeline.splat_utility import UtilityError, build_utility_table, grid_positions
 from l3gs_opt.pipeline.utilities import UtilityNameError, get_utility
-from l3gs_opt.scene.bundle import write_bundle
-from l3gs_opt.scene.procedural import make_scene
 from l3gs_opt.simulator.simulation import SimConfig, SimulationError
-from l3gs_opt.traces.poses import synthetic_poses, write_pose_log
-from cli_helpers import one_error_line
+from cli_helpers import one_error_line, tiny_sort_bundle
 from renderer_helpers import make_camera
 
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    root = tmp_path_factory.mktemp("bad")
-    teacher = make_scene(1000, objects=2, sh_degree=0, seed=0)
-    order = np.random.default_rng(0).permutation(teacher.num_splats)
-    write_bundle(root / "ok", [teacher.subset(order[:300]), teacher.subset(order[300:])], variant="sort")
-    log = write_pose_log(synthetic_poses("orbit", seconds=4, rate_hz=30, seed=0), root / "viewer.log")
-    return {"root": root, "ok": root / "ok", "log": log, "scene": teacher}
+    w = tiny_sort_bundle(tmp_path_factory.mktemp("bad"))
+    return {**w, "ok": w["bundle"]}
 
 
 def _sim_args(world, bundle=None) -> list:

@@ -11,29 +11,20 @@ import hashlib
 import shutil
 import socket
 
-import numpy as np
 import pytest
 
 pytest.importorskip("aiohttp")
 
 from l3gs_opt.delivery.fetch import FETCH_DIR, MAX_RETRY_S, MIN_SLOT_S, FetchError, fetch  # noqa: E402
 from l3gs_opt.delivery.server import ServerError, _is_loopback, start_server  # noqa: E402
-from l3gs_opt.scene.bundle import write_bundle  # noqa: E402
-from l3gs_opt.scene.procedural import make_scene  # noqa: E402
 from l3gs_opt.scene.stream_index import export_stream  # noqa: E402
-from l3gs_opt.traces.poses import synthetic_poses, write_pose_log  # noqa: E402
-from cli_helpers import one_error_line, run_cli  # noqa: E402
+from cli_helpers import one_error_line, run_cli, tiny_sort_bundle  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    root = tmp_path_factory.mktemp("fsbad")
-    teacher = make_scene(1000, objects=2, sh_degree=0, seed=0)
-    order = np.random.default_rng(0).permutation(teacher.num_splats)
-    write_bundle(root / "bundle", [teacher.subset(order[:300]), teacher.subset(order[300:])], variant="sort")
-    single = export_stream(root / "bundle", root / "single", pack="single").parent
-    log = write_pose_log(synthetic_poses("orbit", seconds=4, rate_hz=30, seed=0), root / "viewer.log")
-    return {"root": root, "bundle": root / "bundle", "single": single, "log": log}
+    w = tiny_sort_bundle(tmp_path_factory.mktemp("fsbad"), "bundle")
+    return {**w, "single": export_stream(w["bundle"], w["root"] / "single", pack="single").parent}
 
 
 @pytest.fixture
