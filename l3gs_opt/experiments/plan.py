@@ -21,6 +21,8 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.pipeline.utilities import DEFAULT_UTILITY
+from l3gs_opt.pipeline.counts import check_count
+from l3gs_opt.scene.cameras import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
 
 __all__ = ["ExperimentError", "SceneSpec", "PathSpec", "TraceSpec", "Task", "ExperimentPlan", "make_plan",
            "default_traces", "trace_class", "scaled_mbps", "method_variant", "ABLATIONS",
@@ -518,9 +520,6 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
     h = height if height is not None else (96 if quick else 120)
     # The cameras' limits, checked here: the cameras are made only after the bundles are built.
     # >= 11: SSIM's window, as SimConfig and the fidelity check require.
-    from l3gs_opt.pipeline.counts import check_count
-    from l3gs_opt.scene.cameras import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE
-
     w = check_count("width", w, low=11, high=MAX_IMAGE_SIDE, error=ExperimentError)
     h = check_count("height", h, low=11, high=MAX_IMAGE_SIDE, error=ExperimentError)
     if w * h > MAX_IMAGE_PIXELS:
