@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
 from l3gs_opt.jsonout import OutputError, dumps
+from l3gs_opt.output_files import write_atomic
 
 __all__ = ["LOCK_SUFFIX", "RecordFileError", "OutputLockedError", "read_records", "repair_torn_tail",
            "OutputLock", "RecordLog", "append_record", "rewrite_records", "prepare_path"]
@@ -398,11 +399,4 @@ def append_record(path: str | os.PathLike[str], record: Mapping[str, Any], *,
 def rewrite_records(path: str | os.PathLike[str], records: Iterable[Mapping[str, Any]]) -> None:
     """Replace ``path`` by ``records`` atomically (a temporary file renamed over it, fsynced): a
     crash leaves the old file or the new one, never a mix. Not locked: hold the file's lock."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    text = "".join(dumps(r, where="record") + "\n" for r in records)
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_atomic(path, "".join(dumps(r, where="record") + "\n" for r in records), fsync=True)

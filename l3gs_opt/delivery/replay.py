@@ -31,6 +31,7 @@ from urllib.parse import quote
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import check_regular_file
+from l3gs_opt.output_files import write_atomic
 from l3gs_opt.records import read_records
 from l3gs_opt.simulator.client import REFERENCE_VIEWS, VIEWS_FILE, views_folder
 
@@ -516,8 +517,4 @@ def write_replay(run_dir: str | os.PathLike, out_dir: str | os.PathLike) -> Path
             + "".join(sections)
             + f'<script type="application/json" id="replay-data">{_json_for_script(data)}</script>'
             f'<script>{_JS}</script></body></html>\n')
-    path = out_dir / PAGE_NAME
-    tmp = path.with_name(f".{PAGE_NAME}.{os.getpid()}.tmp")
-    tmp.write_text(page, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_atomic(out_dir / PAGE_NAME, page)

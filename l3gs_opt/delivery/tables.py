@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -37,6 +36,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_json
+from l3gs_opt.output_files import write_atomic
 from l3gs_opt.scene.stream_index import INDEX_NAME
 
 __all__ = ["TablesError", "TABLES_NAME", "TABLES_SCHEMA", "export_tables", "read_tables", "load_table"]
@@ -127,18 +127,12 @@ def export_tables(export_dir, *, utility: str = "eq1", views: Sequence[str] = ("
                          up_axis="xyz".index(up), width=width, height=height, fov_deg=fov_deg, progress=progress)
         data = utility_table_bytes(table, utility=name, view=view)
         file = f"utility-{name}-{view}.npz"
-        tmp = folder / (file + ".part")
-        tmp.write_bytes(data)
-        os.replace(tmp, folder / file)
+        write_atomic(folder / file, data)
         entries = [e for e in entries if (e["utility"], e["view"]) != (name, view)]
         entries.append({"file": file, "utility": name, "view": view, "bytes": len(data),
                         "sha256": hashlib.sha256(data).hexdigest(), "grid": grid})
     manifest = {"schema": TABLES_SCHEMA, "index_sha256": index_sha, "tables": entries}
-    out = folder / TABLES_NAME
-    tmp = folder / (TABLES_NAME + ".part")
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-    os.replace(tmp, out)
-    return out
+    return write_atomic(folder / TABLES_NAME, json.dumps(manifest, indent=1) + "\n")
 
 
 def read_tables(source, *, index_bytes: Optional[bytes] = None) -> list[dict]:

@@ -45,6 +45,7 @@ from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
+from l3gs_opt.output_files import write_atomic
 from l3gs_opt.scene.bundle import REPRESENTATION, VARIANTS, split_layers, write_bundle
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_json
@@ -250,9 +251,9 @@ class _Stages:
         self._write_state()
 
     def _write_state(self) -> None:
-        tmp = self.state_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"key": self.key, "done": self.done, "partial": self.partial}, indent=1))
-        os.replace(tmp, self.state_path)  # atomic: an interrupted write never leaves a broken state
+        # atomic: an interrupted write never leaves a broken state
+        state = {"key": self.key, "done": self.done, "partial": self.partial}
+        write_atomic(self.state_path, json.dumps(state, indent=1))
 
 
 def _schedule_key(schedule: BuildSchedule, variant: str) -> dict:

@@ -17,13 +17,13 @@ Example
 from __future__ import annotations
 
 import io
-import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from l3gs_opt.errors import L3gsError
+from l3gs_opt.output_files import write_atomic
 
 __all__ = ["TableFileError", "write_utility_table", "read_utility_table", "utility_table_bytes", "MAX_TABLE_BYTES"]
 
@@ -57,11 +57,7 @@ def utility_table_bytes(table, *, utility: str, view: str) -> bytes:
 
 def write_utility_table(path, table, *, utility: str, view: str) -> Path:
     """Write ``table`` to ``path`` (atomically: a reader never sees half a file); returns the path."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(utility_table_bytes(table, utility=utility, view=view))
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, utility_table_bytes(table, utility=utility, view=view))
 
 
 def _array(z, key: str, dtype_kind: str, ndim: int) -> np.ndarray:

@@ -78,7 +78,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
 import re
 from pathlib import Path
 from typing import Callable, Optional, Sequence, Union
@@ -87,6 +86,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import check_regular_file, key_name, read_json
+from l3gs_opt.output_files import write_atomic
 from l3gs_opt.scene.bundle import BUNDLE_SCHEMA, REPRESENTATION, VARIANTS, Bundle, read_bundle, record_fields
 
 __all__ = ["STREAM_SCHEMA", "PACKS", "DEFAULT_ALIGNMENT", "MAX_ALIGNMENT", "INDEX_NAME", "StreamError",
@@ -316,14 +316,6 @@ def _check_export_args(bundle: Path, out: Path, pack: str, alignment: int) -> No
         raise StreamError("out", f"{out} is the bundle folder itself: export to another folder")
 
 
-def _write_atomic(path: Path, write: Callable) -> None:
-    """``write(fh)`` into ``path`` through a temporary file, so that no reader sees a half-written one."""
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as fh:
-        write(fh)
-    os.replace(tmp, path)
-
-
 def export_stream(bundle_dir, out_dir, *, pack: str = "single", alignment: int = DEFAULT_ALIGNMENT) -> Path:
     """Export a bundle as a streamable index and chunk data files.
 
@@ -399,18 +391,17 @@ def export_stream(bundle_dir, out_dir, *, pack: str = "single", alignment: int =
                 fh.write(data)
                 pos += pad + len(data)
 
-        _write_atomic(out / SINGLE_FILE, write_single)
+        write_atomic(out / SINGLE_FILE, write_single)
     else:
         (out / "chunks").mkdir(exist_ok=True)
         filenames = [f"chunks/o{c['object']}_l{c['level']}_{c['sh_form']}.bin" for c in m["chunks"]]
         for i in range(len(m["chunks"])):
             data = b.chunk(i).tobytes()
-            _write_atomic(out / filenames[i], lambda fh, d=data: fh.write(d))
+            write_atomic(out / filenames[i], data)
             chunks.append(entry(i, data, i, 0))
     index = _index_dict(m, records, pack, alignment, filenames, chunks)
     path = out / INDEX_NAME
-    text = _dumps_index(index).encode()
-    _write_atomic(path, lambda fh: fh.write(text))
+    write_atomic(path, _dumps_index(index))
     return path
 
 

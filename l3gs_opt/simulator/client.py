@@ -28,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from l3gs_opt.output_files import write_atomic
 from l3gs_opt.simulator.link import Link, max_min_shares, split_bytes
 from l3gs_opt.simulator.config import TIMING_KEYS, SimulationError, SlotInputs
 from l3gs_opt.simulator.records import RecordWriter, RunSummary, SimulationResult
@@ -63,9 +64,7 @@ def _save_png(path: Path, image: np.ndarray) -> None:
     from PIL import Image   # matplotlib's own PNG writer; a dependency through it
 
     pixels = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    Image.fromarray(pixels, "RGB").save(tmp, format="PNG")
-    os.replace(tmp, path)
+    write_atomic(path, lambda fh: Image.fromarray(pixels, "RGB").save(fh, format="PNG"))
 
 
 class Client:

@@ -27,11 +27,11 @@ import contextlib
 import hashlib
 import os
 import struct
-import tempfile
 from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
+from l3gs_opt.output_files import write_atomic
 
 __all__ = ["RenderCache", "render_backend", "scene_fingerprint", "camera_key", "render_image",
            "REFERENCE_CACHE", "VIEW_CACHE", "RENDER_THREADS"]
@@ -148,10 +148,7 @@ class RenderCache:
         self._remember(key, img)
         if self.directory is not None:
             self.directory.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=self.directory, suffix=".tmp")
-            with os.fdopen(fd, "wb") as fh:
-                np.save(fh, img)
-            os.replace(tmp, self.directory / f"{key}.npy")
+            write_atomic(self.directory / f"{key}.npy", lambda fh: np.save(fh, img))
 
     def _remember(self, key: str, img: np.ndarray) -> None:
         if key in self._items:
