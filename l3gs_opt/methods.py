@@ -12,7 +12,7 @@ import numpy as np
 from l3gs_opt import stop
 from l3gs_opt.errors import SolveError
 from l3gs_opt.models.backends import used_up
-from l3gs_opt.problem.arguments import check_slot, check_time_limit
+from l3gs_opt.problem.arguments import check_instance, check_options, check_slot, check_time_limit
 from l3gs_opt.problem.instance import Instance, scale_exponent
 from l3gs_opt.problem.items import ItemInstance
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
@@ -72,23 +72,26 @@ def solve(instance: Instance | ItemInstance, method: str = "ilp", *, backend: st
         optimum is unchanged, but the ``lp`` bound is that of the presolved model: dropping
         dominated options can make it tighter than the textbook LP (``presolve=False``).
     options : mapping, optional
-        Backend-specific options (unknown ones warn).
+        Backend-specific options, keyed by option name (``str``); unknown ones warn, a value the
+        backend refuses is an error.
 
     Raises
     ------
     SolveError
         Unknown method, form or backend; a time limit that is not > 0 seconds; a slot out of
-        range; an option that does not apply.
+        range; an option that does not apply; ``instance`` not an ``Instance`` or
+        ``ItemInstance``; ``options`` not a mapping with string keys.
     """
     time_limit_s = check_time_limit(time_limit_s)
-    slot = check_slot(slot, instance.T) if isinstance(instance, (Instance, ItemInstance)) else slot
+    check_instance(instance, Instance, ItemInstance)
+    slot = check_slot(slot, instance.T)
+    options = check_options(options)
     _check_model_options(method, backend, form, presolve)
-    if isinstance(instance, (Instance, ItemInstance)):
-        exponent = scale_exponent(instance.utility, UTILITY_TOP)
-        if not -UTILITY_BAND <= exponent <= UTILITY_BAND:
-            return _noting_stop(_solve_scaled(instance, exponent, method, backend=backend, form=form, slot=slot,
-                                              time_limit_s=time_limit_s, presolve=presolve, options=options),
-                                time_limit_s)
+    exponent = scale_exponent(instance.utility, UTILITY_TOP)
+    if not -UTILITY_BAND <= exponent <= UTILITY_BAND:
+        return _noting_stop(_solve_scaled(instance, exponent, method, backend=backend, form=form, slot=slot,
+                                          time_limit_s=time_limit_s, presolve=presolve, options=options),
+                            time_limit_s)
     return _noting_stop(_dispatch(instance, method, backend=backend, form=form, slot=slot,
                                   time_limit_s=time_limit_s, presolve=presolve, options=options), time_limit_s)
 

@@ -1,28 +1,29 @@
 """The arguments every solve takes, checked one way for every method and both instance forms.
 
-``check_time_limit`` and ``check_slot`` sit at the bottom layer so that the solvers, the models and
-:func:`l3gs_opt.methods.solve` all call the same check (the slot was once checked four ways that
-disagreed on numpy integers).
+``check_time_limit``, ``check_slot``, ``check_options`` and ``check_instance`` sit at the bottom
+layer so that the solvers, the models, the evaluators and :func:`l3gs_opt.methods.solve` all call
+the same check (the slot was once checked four ways that disagreed on numpy integers).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from l3gs_opt.errors import SolveError
 
-__all__ = ["check_time_limit", "check_slot"]
+__all__ = ["check_time_limit", "check_slot", "check_options", "check_instance"]
 
 
 def check_time_limit(value: Any, *, name: str = "time_limit_s") -> float | None:
     """``time_limit_s`` as every method takes it: ``None`` (no limit) or a float > 0 seconds.
 
     ``inf`` (``--time-limit inf``) means "no limit" and is returned as ``None``, so that every
-    method and backend runs exactly as it does without a limit. ``name`` is the argument named in
-    the message (the CLI says ``--time-limit``).
+    method and backend runs exactly as it does without a limit. So is an integer beyond float's
+    range (``10**400``): it rounds to ``inf`` as ``float("1e400")`` does, and no run can reach it.
+    ``name`` is the argument named in the message (the CLI says ``--time-limit``).
 
     Raises
     ------
@@ -34,7 +35,10 @@ def check_time_limit(value: Any, *, name: str = "time_limit_s") -> float | None:
     shown = value.item() if isinstance(value, np.generic) else value
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise SolveError(f"{name} = {shown!r}: must be a number of seconds > 0 (or inf for no limit)")
-    seconds = float(value)
+    try:
+        seconds = float(value)
+    except OverflowError:   # an int beyond 1.8e308 s: longer than any run, as inf is (or -inf)
+        seconds = math.inf if value > 0 else -math.inf
     if math.isnan(seconds) or seconds <= 0:
         raise SolveError(f"{name} = {shown!r}: must be > 0 seconds (or inf for no limit)")
     return None if math.isinf(seconds) else seconds
@@ -55,3 +59,43 @@ def check_slot(value: Any, T: int, *, name: str = "slot") -> int | None:
         shown = value.item() if isinstance(value, np.generic) else value
         raise SolveError(f"{name} = {shown!r}: must be an integer in 0..{T - 1}")
     return int(value)
+
+
+def _brief(value: Any) -> str:
+    text = repr(value.item() if isinstance(value, np.generic) else value)
+    return text if len(text) <= 24 else text[:21] + "..."
+
+
+def check_options(value: Any, *, name: str = "options") -> dict[str, Any]:
+    """``options`` (backend-specific settings) as every method takes it: ``None`` (none) or a
+    mapping from option names (``str``) to values, returned as a new ``dict``. Whether a backend
+    knows a name, and takes its value, is the backend's to say.
+
+    Raises
+    ------
+    SolveError
+        Not a mapping (a list of pairs or a string included), or a key that is not a string.
+    """
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise SolveError(f"{name} = {_brief(value)}: must be a mapping of option names (str) to values, "
+                         f"got {type(value).__name__}")
+    for key in value:
+        if not isinstance(key, str):
+            raise SolveError(f"{name}: key {_brief(key)} must be an option name (str), got {type(key).__name__}")
+    return dict(value)
+
+
+def check_instance(value: Any, *kinds: type, name: str = "instance") -> None:
+    """``value`` must be one of the instance classes ``kinds`` (passed in, so that this module
+    imports no instance form); anything else would fail later as a raw ``AttributeError``.
+
+    Raises
+    ------
+    SolveError
+        Naming the type given and the types accepted.
+    """
+    if not isinstance(value, kinds):
+        accepted = " or ".join(k.__name__ for k in kinds)
+        raise SolveError(f"{name} must be an {accepted}, got {type(value).__name__}")

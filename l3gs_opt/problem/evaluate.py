@@ -8,6 +8,11 @@ A schedule is a collection of arrivals ``(j, l, t)``: chunk (j, l) arrives in sl
 For the single-slot problem (``slot=t``) every arrival is in slot t and the objective is the
 utility shown at slot t, held items included.
 
+Malformed input is refused, never guessed at (:func:`checked_arrivals`): each arrival must be a
+triple of integers (Python or numpy; not bool, float or str) within the instance, so ``-1`` is
+not the last object and ``2.9`` not item 2. A well-formed schedule that breaks a rule (over
+budget, a layer without the one below) is what :func:`feasibility_violations` reports.
+
 Layered utilities may be negative (docs/design.md): every layer shown counts with its sign, so a
 schedule can be worth less than the empty one. :func:`trim_losing_layers` cuts each object's
 delivered layers back to its best prefix, which heuristics use so as never to keep a negative
@@ -18,14 +23,17 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from l3gs_opt.errors import InstanceError
+from l3gs_opt.problem.arguments import check_instance, check_slot
 from l3gs_opt.problem.instance import Instance
 
 __all__ = [
     "Arrival",
+    "checked_arrivals",
     "normalize_arrivals",
     "arrival_slots",
     "evaluate_objective",
@@ -45,10 +53,77 @@ def normalize_arrivals(arrivals: Iterable[Sequence[int]]) -> tuple[Arrival, ...]
     return tuple(sorted(out, key=lambda a: (a[2], a[0], a[1])))
 
 
+def _shown(value: Any) -> str:
+    """An arrival or entry as the user wrote it, briefly (a numpy row as a tuple of numbers)."""
+    if isinstance(value, np.ndarray):
+        value = tuple(value.tolist())
+    elif isinstance(value, np.generic):
+        value = value.item()
+    elif isinstance(value, (tuple, list)):
+        value = type(value)(v.item() if isinstance(v, np.generic) else v for v in value)
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def checked_arrivals(arrivals: Any, axes: Sequence[tuple[str, int | None]]) -> list[Arrival]:
+    """``arrivals`` as a list of Python int triples, refusing malformed input.
+
+    ``axes`` names each entry and its size, e.g. ``[("object", J), ("layer", L), ("slot", T)]``
+    (size ``None``: any integer, for a label). Each arrival must be a tuple, list or 1-D array of
+    ``len(axes)`` integers (numpy integers included; a bool, float or str is refused, not
+    truncated or parsed), each in ``0..size-1`` (a negative index is refused, not wrapped).
+
+    Raises
+    ------
+    InstanceError
+        Field ``arrivals``, naming the arrival's index, e.g.
+        ``arrivals[3] = (0, 5, 1): layer 5 is out of range 0..1``.
+    """
+    shape = "(" + ", ".join(name for name, _ in axes) + ")"
+    if isinstance(arrivals, (str, bytes, Mapping)):
+        raise InstanceError("arrivals", f"must be a list of {shape} arrivals, got {type(arrivals).__name__}")
+    try:
+        items = list(arrivals)
+    except TypeError:   # None, a number, a 0-d array
+        raise InstanceError("arrivals", f"must be a list of {shape} arrivals, got {type(arrivals).__name__}") \
+            from None
+    out: list[Arrival] = []
+    for k, a in enumerate(items):
+        row = isinstance(a, (tuple, list)) or (isinstance(a, np.ndarray) and a.ndim == 1)
+        if not row or len(a) != len(axes):
+            raise InstanceError("arrivals", f"= {_shown(a)}: must be a {shape} tuple of {len(axes)} integers", (k,))
+        entry = []
+        for v, (name, size) in zip(a, axes):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise InstanceError("arrivals", f"= {_shown(a)}: {name} {_shown(v)} is not an integer", (k,))
+            if size is not None and not 0 <= v < size:
+                where = f"out of range 0..{size - 1}" if size else f"out of range (there is no {name})"
+                raise InstanceError("arrivals", f"= {_shown(a)}: {name} {int(v)} is {where}", (k,))
+            entry.append(int(v))
+        out.append(tuple(entry))
+    return out
+
+
+def _chunk_axes(instance: Instance) -> list[tuple[str, int]]:
+    return [("object", instance.J), ("layer" if instance.layered else "version", instance.L), ("slot", instance.T)]
+
+
 def arrival_slots(instance: Instance, arrivals: Iterable[Arrival]) -> np.ndarray:
-    """``[J, L]`` array: the slot each chunk arrives in, or -1 (never). Assumes a valid schedule."""
+    """``[J, L]`` array: the slot each chunk arrives in, or -1 (never).
+
+    Raises
+    ------
+    InstanceError
+        A malformed arrival (:func:`checked_arrivals`), or a chunk given twice: it has no one
+        arrival slot, and taking the first or the last would make the answer depend on the order.
+    """
     slots = np.full((instance.J, instance.L), NEVER, dtype=np.int64)
-    for j, l, t in arrivals:
+    first: dict[tuple[int, int], int] = {}
+    for k, (j, l, t) in enumerate(checked_arrivals(arrivals, _chunk_axes(instance))):
+        if (j, l) in first:
+            raise InstanceError("arrivals", f"= {(j, l, t)}: chunk {(j, l)} is given twice (also as "
+                                            f"arrivals[{first[(j, l)]}]); a chunk arrives at most once", (k,))
+        first[(j, l)] = k
         slots[j, l] = t
     return slots
 
@@ -72,8 +147,23 @@ def evaluate_objective(instance: Instance, arrivals: Iterable[Arrival], *, slot:
     Layered: ``sum_t sum_{j,l} dU[t,j,l] * shown[t,j,l]``, each term with its sign (a negative
     layer held lowers the value). Separate: ``sum_t sum_j max(0, max_l U[t,j,l] * shown[t,j,l])``
     (the best version held is shown; ``U >= 0``). With ``slot=t`` only slot t counts and a chunk
-    arriving in t is shown at t.
+    arriving in t is shown at t (one arriving in another slot is not).
+
+    Each chunk counts from its arrival as written: budgets, layer order and chunks already held
+    are not checked here (:func:`feasibility_violations` does that; a solver's schedule is
+    checked and repaired before it is valued), so an infeasible schedule gets the value of the
+    formula above, e.g. a layer counted without the layer below it.
+
+    Raises
+    ------
+    InstanceError
+        A malformed schedule (:func:`checked_arrivals`: wrong type or length, an index out of
+        range, a non-integer), or a chunk given twice (see :func:`arrival_slots`).
+    SolveError
+        ``instance`` is not an :class:`Instance`; ``slot`` is not an integer in ``0..T-1``.
     """
+    check_instance(instance, Instance)
+    slot = check_slot(slot, instance.T)
     slots = arrival_slots(instance, arrivals)
     shown = _available(instance, slots, slot)
     utility = instance.utility[slot:slot + 1] if slot is not None else instance.utility
@@ -124,19 +214,25 @@ def feasibility_violations(instance: Instance, arrivals: Iterable[Arrival], *,
                            slot: int | None = None) -> list[str]:
     """Every rule the schedule breaks, as readable strings (empty list: feasible).
 
-    Checked exactly: indices in range, each chunk at most once and not already held, per-slot
-    or cumulative byte budgets in integer bytes, and (layered) layer l only after layer l-1
-    (same slot allowed unless ``options.same_slot_layers`` is false).
+    Checked exactly: each chunk at most once and not already held, in slot ``slot`` when given,
+    per-slot or cumulative byte budgets in integer bytes, and (layered) layer l only after layer
+    l-1 (same slot allowed unless ``options.same_slot_layers`` is false).
+
+    Raises
+    ------
+    InstanceError
+        A malformed schedule, which is not a schedule to report on (:func:`checked_arrivals`:
+        wrong type or length, an index out of range, a non-integer).
+    SolveError
+        ``instance`` is not an :class:`Instance`; ``slot`` is not an integer in ``0..T-1``.
     """
     inst = instance
+    check_instance(inst, Instance)
+    slot = check_slot(slot, inst.T)
     problems: list[str] = []
     seen: dict[tuple[int, int], int] = {}
     spent: dict[int, int] = defaultdict(int)
-    for a in arrivals:
-        j, l, t = (int(v) for v in a)
-        if not (0 <= j < inst.J and 0 <= l < inst.L and 0 <= t < inst.T):
-            problems.append(f"arrival {(j, l, t)} out of range (J={inst.J}, L={inst.L}, T={inst.T})")
-            continue
+    for j, l, t in checked_arrivals(arrivals, _chunk_axes(inst)):
         if slot is not None and t != slot:
             problems.append(f"arrival {(j, l, t)} is not in slot {slot}")
         if (j, l) in seen:
@@ -160,6 +256,7 @@ def feasibility_violations(instance: Instance, arrivals: Iterable[Arrival], *,
 
 
 def is_feasible(instance: Instance, arrivals: Iterable[Arrival], *, slot: int | None = None) -> bool:
+    """Whether :func:`feasibility_violations` finds nothing; malformed input raises as it does there."""
     return not feasibility_violations(instance, arrivals, slot=slot)
 
 

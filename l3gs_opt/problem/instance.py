@@ -167,10 +167,46 @@ def _first_index(mask: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(mask)[0])
 
 
+def _uneven_at(value: Any) -> tuple[tuple[int, ...], str] | None:
+    """The index and a description of the first list in nested lists (tuples, arrays) whose length
+    differs from the first list of its level, or that mixes lists and numbers; None if none does."""
+    def is_list(v: Any) -> bool:
+        return isinstance(v, (list, tuple)) or (isinstance(v, np.ndarray) and v.ndim > 0)
+
+    level: list[tuple[tuple[int, ...], Any]] = [((), value)]
+    while level:
+        lists = [(idx, v) for idx, v in level if is_list(v)]
+        if not lists:
+            return None
+        if len(lists) != len(level):
+            idx = next(idx for idx, v in level if not is_list(v))
+            return idx, "a number where the other entries are lists"
+        first, size = lists[0][0], len(lists[0][1])
+        for idx, v in lists:
+            if len(v) != size:
+                where = "".join(f"[{i}]" for i in first)
+                return idx, f"expected {size} entries, got {len(v)} ({{name}}{where} has {size})"
+        level = [(idx + (i,), item) for idx, v in lists for i, item in enumerate(v)]
+    return None
+
+
+def as_array(value: Any, name: str) -> np.ndarray:
+    """``np.asarray(value)``, with nested lists of unequal length (numpy's "inhomogeneous shape"
+    ``ValueError``) raised as :class:`InstanceError` naming ``name`` and the list at fault."""
+    try:
+        return np.asarray(value)
+    except ValueError:
+        where = _uneven_at(value)
+        if where is None:
+            raise InstanceError(name, "must be an array of numbers: rows of unequal length") from None
+        idx, what = where
+        raise InstanceError(name, f"rows of unequal length: {what.format(name=name)}", idx) from None
+
+
 def binary_array(value: Any, name: str, shape: tuple[int, ...], axes: str) -> np.ndarray:
     """``value`` as a (writable) bool array of ``shape`` (named ``axes`` in messages, e.g. "(J, L)"),
     from 0/1 numbers; raises :class:`InstanceError` naming ``name`` and the first bad index."""
-    arr = np.asarray(value)
+    arr = as_array(value, name)
     if arr.shape != shape:
         raise InstanceError(name, f"has shape {arr.shape}, expected {axes} = {shape}")
     if arr.size and arr.dtype.kind not in "biuf":
@@ -184,7 +220,7 @@ def binary_array(value: Any, name: str, shape: tuple[int, ...], axes: str) -> np
 
 def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarray:
     """Canonical int64 byte array; integral floats are accepted, fractions are not."""
-    arr = np.asarray(value)
+    arr = as_array(value, name)
     if arr.ndim != ndim:
         raise InstanceError(name, f"must be a {ndim}-dimensional array, got {arr.ndim} dimensions")
     if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
@@ -213,7 +249,7 @@ def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarr
 
 
 def _utility_array(value: Any, representation: str) -> np.ndarray:
-    arr = np.asarray(value)
+    arr = as_array(value, "utility")
     if arr.ndim != 3:
         raise InstanceError("utility", f"must be a 3-dimensional array (T, J, L), got {arr.ndim} dimensions")
     if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
@@ -294,9 +330,15 @@ class Instance:
     meta: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        # A str first: ``np.array(["layered"]) in REPRESENTATIONS`` compares elementwise and is true.
+        if not isinstance(self.representation, str):
+            raise InstanceError("representation", f"must be a str, one of {', '.join(REPRESENTATIONS)}; got "
+                                                  f"{type(self.representation).__name__}")
         if self.representation not in REPRESENTATIONS:
             raise InstanceError("representation",
                                 f"{self.representation!r} is not one of {', '.join(REPRESENTATIONS)}")
+        # Stored as a plain str (not np.str_), so that it compares, hashes and writes as one.
+        object.__setattr__(self, "representation", str(self.representation))
         bandwidth = _byte_array(self.bandwidth, "bandwidth", 1, positive=False)
         if bandwidth.shape[0] < 1:
             raise InstanceError("bandwidth", "must have at least one slot")

@@ -6,7 +6,8 @@ keeps arrivals triples like the ``(j, l, t)`` of Problems I/II, so one
 :class:`~l3gs_opt.problem.solution.Solution` type serves both.
 
 As in :mod:`l3gs_opt.problem.evaluate`: the objective is re-evaluated in float64 with ``math.fsum``;
-feasibility is checked in exact integer bytes (Python ints). Every item method leaves through
+feasibility is checked in exact integer bytes (Python ints); malformed arrivals are refused
+(:func:`~l3gs_opt.problem.evaluate.checked_arrivals`), never truncated or wrapped. Every item method leaves through
 :func:`l3gs_opt.problem.solution.finish_solution`, which calls these for an item instance.
 """
 
@@ -18,7 +19,9 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from l3gs_opt.problem.evaluate import budget_violations, first_breach
+from l3gs_opt.errors import InstanceError
+from l3gs_opt.problem.arguments import check_instance, check_slot
+from l3gs_opt.problem.evaluate import budget_violations, checked_arrivals, first_breach
 from l3gs_opt.problem.items import ItemInstance
 
 __all__ = ["ItemArrival", "normalize_item_arrivals", "evaluate_items", "item_violations", "items_feasible",
@@ -33,10 +36,26 @@ def normalize_item_arrivals(arrivals: Iterable[Sequence[int]]) -> tuple[ItemArri
     return tuple(sorted(out, key=lambda a: (a[2], a[1], a[0])))
 
 
+def _item_arrivals(instance: ItemInstance, arrivals: Iterable[Sequence[int]]) -> list[ItemArrival]:
+    """The arrivals as int triples; the object is a label (any integer), checked against the item
+    by the callers: :func:`item_violations` reports a mismatch, :func:`evaluate_items` refuses it."""
+    return checked_arrivals(arrivals, [("object", None), ("item", instance.N), ("slot", instance.T)])
+
+
 def _arrival_slots(instance: ItemInstance, arrivals: Iterable[Sequence[int]]) -> np.ndarray:
+    """``[N]``: the slot each item arrives in, or -1. An item given twice, or under another
+    object, is refused: its value would depend on the order of the arrivals or on a guess."""
     slots = np.full(instance.N, -1, dtype=np.int64)
-    for _, i, t in arrivals:
-        slots[int(i)] = int(t)
+    first: dict[int, int] = {}
+    for k, (j, i, t) in enumerate(_item_arrivals(instance, arrivals)):
+        if j != int(instance.object[i]):
+            raise InstanceError("arrivals", f"= {(j, i, t)}: item {i} is of object {int(instance.object[i])}, "
+                                            f"not {j}", (k,))
+        if i in first:
+            raise InstanceError("arrivals", f"= {(j, i, t)}: item {i} is given twice (also as arrivals[{first[i]}]); "
+                                            "an item arrives at most once", (k,))
+        first[i] = k
+        slots[i] = t
     return slots
 
 
@@ -45,9 +64,23 @@ def evaluate_items(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *,
 
     ``sum_t sum_g max(0, max {U[t, i] : i in g shown at t})``; an item is shown at t when held or
     arrived in a slot ``<= t`` (``< t`` under next-slot availability). With ``slot=s`` only slot s
-    counts and an item arriving in s is shown at s.
+    counts and an item arriving in s is shown at s (one arriving in another slot is not).
+
+    Each item counts from its arrival as written: budgets, precedence and items already held are
+    not checked here (:func:`item_violations` does that), so an infeasible schedule gets the value
+    of the formula above.
+
+    Raises
+    ------
+    InstanceError
+        A malformed schedule (wrong type or length, an index out of range, a non-integer), an
+        item given twice, or an arrival whose object is not its item's.
+    SolveError
+        ``instance`` is not an :class:`ItemInstance`; ``slot`` is not an integer in ``0..T-1``.
     """
     inst = instance
+    check_instance(inst, ItemInstance)
+    slot = check_slot(slot, inst.T)
     slots = _arrival_slots(inst, arrivals)
     if slot is not None:
         shown = (inst.held | (slots == slot))[None]
@@ -69,20 +102,26 @@ def item_violations(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *
                     slot: int | None = None) -> list[str]:
     """Every rule the schedule breaks, as readable strings (empty list: feasible).
 
-    Checked exactly: indices in range and the object matching the item, each item at most once
-    and not already held, per-slot or cumulative byte budgets in integer bytes (per slot when
-    ``slot`` is given), and precedence: each parent held, or arrived in the same or an earlier
-    slot (strictly earlier when ``options.same_slot_layers`` is false).
+    Checked exactly: the object matching the item, each item at most once and not already held,
+    in slot ``slot`` when given, per-slot or cumulative byte budgets in integer bytes (per slot
+    when ``slot`` is given), and precedence: each parent held, or arrived in the same or an
+    earlier slot (strictly earlier when ``options.same_slot_layers`` is false).
+
+    Raises
+    ------
+    InstanceError
+        A malformed schedule, which is not a schedule to report on (wrong type or length, an item
+        or slot out of range, a non-integer).
+    SolveError
+        ``instance`` is not an :class:`ItemInstance`; ``slot`` is not an integer in ``0..T-1``.
     """
     inst = instance
+    check_instance(inst, ItemInstance)
+    slot = check_slot(slot, inst.T)
     problems: list[str] = []
     seen: dict[int, int] = {}
     spent: dict[int, int] = defaultdict(int)
-    for a in arrivals:
-        j, i, t = (int(v) for v in a)
-        if not (0 <= i < inst.N and 0 <= t < inst.T):
-            problems.append(f"arrival {(j, i, t)} out of range (N={inst.N}, T={inst.T})")
-            continue
+    for j, i, t in _item_arrivals(inst, arrivals):
         if j != int(inst.object[i]):
             problems.append(f"arrival {(j, i, t)}: item {i} is of object {int(inst.object[i])}")
         if slot is not None and t != slot:
@@ -109,6 +148,7 @@ def item_violations(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *
 
 
 def items_feasible(instance: ItemInstance, arrivals: Iterable[Sequence[int]], *, slot: int | None = None) -> bool:
+    """Whether :func:`item_violations` finds nothing; malformed input raises as it does there."""
     return not item_violations(instance, arrivals, slot=slot)
 
 

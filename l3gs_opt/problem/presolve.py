@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from l3gs_opt.problem.arguments import check_instance
 from l3gs_opt.problem.instance import Instance
 
 __all__ = ["Reduction", "presolve", "shown_value", "event_slots", "up_to_last", "MckpOptions", "mckp_options"]
@@ -103,6 +104,7 @@ def shown_value(instance: Instance, utility: np.ndarray | None = None) -> tuple[
 
 def presolve(instance: Instance, *, enabled: bool = True) -> Reduction:
     """Reduce a multi-slot instance; ``enabled=False`` keeps every chunk and slot (naive model)."""
+    check_instance(instance, Instance)
     inst = instance
     T, J, L = inst.T, inst.J, inst.L
     gain, constant = shown_value(inst)

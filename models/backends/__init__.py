@@ -19,6 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from l3gs_opt.errors import BackendUnavailableError, SolveError
+from l3gs_opt.problem.arguments import check_options
 from l3gs_opt.problem.instance import scale_exponent
 from l3gs_opt.problem.solution import Status
 
@@ -78,8 +79,12 @@ def installed_backends() -> list[Backend]:
 
 def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: float | None = None,
                 relax: bool = False, options: Mapping[str, Any] | None = None) -> BackendResult:
-    """Solve ``model`` with ``backend``; ``relax`` drops integrality (an LP bound)."""
+    """Solve ``model`` with ``backend``; ``relax`` drops integrality (an LP bound).
+
+    ``options`` is checked here too (a mapping with ``str`` keys, :func:`check_options`): models
+    are solved directly, not only through :func:`l3gs_opt.methods.solve`."""
     backend = Backend.parse(backend)
+    options = check_options(options)
     if time_limit_s is not None and not time_limit_s > 0:
         raise SolveError(f"time_limit_s = {time_limit_s!r}: must be > 0 seconds")
     if not is_installed(backend):
@@ -96,7 +101,7 @@ def solve_model(model: LinearModel, backend: "str | Backend", *, time_limit_s: f
     # (5e-324 needs k = 1094) and underflows for utilities near 1e308.
     exponent = scale_exponent(model.objective, _OBJECTIVE_TOP)
     scaled = dataclasses.replace(model, objective=np.ldexp(model.objective, exponent))
-    result = module.solve(scaled, time_limit_s=time_limit_s, relax=relax, options=dict(options or {}))
+    result = module.solve(scaled, time_limit_s=time_limit_s, relax=relax, options=options)
     if exponent == 0:
         return result
     bound = None if result.bound is None else math.ldexp(result.bound, -exponent)

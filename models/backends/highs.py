@@ -20,6 +20,7 @@ import highspy
 import numpy as np
 
 from l3gs_opt import stop
+from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
@@ -145,6 +146,28 @@ def solve_lp(lp: highspy.HighsLp, *, time_limit_s: float | None = None) -> highs
     return h if h.getModelStatus() == highspy.HighsModelStatus.kOptimal else None
 
 
+def set_option(h: highspy.Highs, key: str, value: Any) -> None:
+    """Set a user's HiGHS option. A name outside :data:`_KNOWN` warns (passed through when HiGHS
+    knows it, ignored when it does not); a value HiGHS refuses is a :class:`SolveError`:
+    ``setOptionValue`` only returns ``kError`` and keeps its old value, so the run would go on
+    without what the user asked for and say nothing."""
+    exists = h.getOptionType(key)[0] == highspy.HighsStatus.kOk
+    if key not in _KNOWN:
+        what = " passed through to HiGHS" if exists else ": HiGHS has no such option either; ignored"
+        warnings.warn(f"highs: unknown option {key!r}{what}", stacklevel=4)
+    if not exists:
+        return
+    try:
+        status = h.setOptionValue(key, value)
+    except TypeError:   # not a bool, int, float or str: highspy's binding has no overload for it
+        status = highspy.HighsStatus.kError
+    if status == highspy.HighsStatus.kError:
+        text = repr(value.item() if isinstance(value, np.generic) else value)
+        kind = str(h.getOptionType(key)[1]).rsplit(".k", 1)[-1].lower()
+        raise SolveError(f"options[{key!r}] = {text if len(text) <= 40 else text[:37] + '...'}: HiGHS refuses "
+                         f"this value for its {kind} option {key!r}")
+
+
 def version() -> str:
     return f"highspy {_pkg_version('highspy')}"
 
@@ -186,9 +209,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     if mip and model.byte_digits:
         options = {"presolve": "off", **options}
     for key, value in options.items():
-        if key not in _KNOWN:
-            warnings.warn(f"highs: unknown option {key!r} passed through to HiGHS", stacklevel=3)
-        h.setOptionValue(key, value)
+        set_option(h, key, value)
     h.run()
     model_status = h.getModelStatus()
     info = h.getInfo()
