@@ -30,15 +30,15 @@ BENCH = ("bench", "--suite", "l3gs", "--sizes", "2", "--seeds", "1", "--time-lim
 ])
 def test_malformed_dask_address_is_one_line(capsys, tmp_path, address, why):
     line = one_error_line(capsys, *BENCH, "--out", tmp_path / "b", "--executor", "dask", "--address", address)
-    assert line.startswith(f"error: address {address!r}: not a Dask scheduler address (") and why in line, line
+    assert line.startswith(f"error: --address {address!r}: not a Dask scheduler address (") and why in line, line
     assert not (tmp_path / "b").exists()
 
 
 def test_address_only_with_dask_and_not_empty(capsys, tmp_path):
     line = one_error_line(capsys, *BENCH, "--out", tmp_path / "b", "--address", "127.0.0.1:8786")
-    assert line == "error: address '127.0.0.1:8786': only the dask executor uses a scheduler address"
+    assert line == "error: --address '127.0.0.1:8786': only the dask executor uses a scheduler address"
     line = one_error_line(capsys, *BENCH, "--out", tmp_path / "b", "--executor", "dask", "--address", "")
-    assert line.startswith("error: address '': empty")
+    assert line.startswith("error: --address '': empty")
     # the library call refuses the same, before any task runs
     ran = []
     with pytest.raises(ExecutorError, match="not a Dask scheduler address"):

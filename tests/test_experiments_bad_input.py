@@ -61,12 +61,12 @@ def test_sizes(tmp_path, capsys, sizes, message):
 
 
 @pytest.mark.parametrize("over, start", [
-    ({"--width": 100000}, "error: width: 100000: must be an integer in [11, 16384]"),
-    ({"--height": 100000}, "error: height: 100000: must be an integer in [11, 16384]"),
-    ({"--width": 16384, "--height": 16384}, "error: width: 16384 x 16384 = 268,435,456 pixels, more than"),
-    ({"--jobs": -1}, "error: jobs = -1: must be an integer >= 0"),
+    ({"--width": 100000}, "error: --width: 100000: must be an integer in [11, 16384]"),
+    ({"--height": 100000}, "error: --height: 100000: must be an integer in [11, 16384]"),
+    ({"--width": 16384, "--height": 16384}, "error: --width: 16384 x 16384 = 268,435,456 pixels, more than"),
+    ({"--jobs": -1}, "error: --jobs = -1: must be an integer >= 0"),
     ({"--jobs": 1, "--executor": "dask", "--address": "not an address"},
-     "error: address 'not an address': not a Dask scheduler address"),
+     "error: --address 'not an address': not a Dask scheduler address"),
 ])
 def test_picture_size_and_jobs_before_the_plan_runs(tmp_path, capsys, over, start):
     line = one_error_line(capsys, *_base(tmp_path, **over))
@@ -98,7 +98,7 @@ def test_empty_lists(tmp_path, capsys, option, what, text):
 
 def test_check_time_inf(tmp_path, capsys):
     line = one_error_line(capsys, *_base(tmp_path, **{"--check-time": "inf"}))
-    assert line == "error: ceiling_check_s: inf: must be a finite number of seconds >= 0"
+    assert line == "error: --check-time: inf: must be a finite number of seconds >= 0"
 
 
 def _sim(i: int) -> dict:

@@ -59,7 +59,7 @@ def test_serve_refuses_a_host_that_is_not_loopback(world, capsys, busy_port, hos
     with pytest.raises(ServerError, match=r"^host: .*only a loopback address"):
         start_server(world["single"], host=host, port=busy_port, timeout_s=2.0)
     line = one_error_line(capsys, "serve", world["single"], "--host", host, "--port", busy_port)
-    assert line.startswith(f"error: host: {host!r}: only a loopback address") and "local viewing" in line, line
+    assert line.startswith(f"error: --host: {host!r}: only a loopback address") and "local viewing" in line, line
 
 
 # -- 2: fetch --slot-s 1e-300 / --mbps 1e-300 ran and reported nonsense
@@ -67,7 +67,7 @@ def test_fetch_slot_too_short(world, capsys, tmp_path):
     args = _fetch_args(world, tmp_path / "o")
     args[args.index("--slot-s") + 1] = "1e-300"
     line = one_error_line(capsys, *args)
-    assert line == f"error: slot_s: 1e-300: must be at least {MIN_SLOT_S} s (MIN_SLOT_S): a fetch slot is wall-clock " \
+    assert line == f"error: --slot-s: 1e-300: must be at least {MIN_SLOT_S} s (MIN_SLOT_S): a fetch slot is wall-clock " \
                    "time", line
     assert not (tmp_path / "o").exists()
 
@@ -76,7 +76,7 @@ def test_fetch_mbps_giving_no_byte(world, capsys, tmp_path):
     args = _fetch_args(world, tmp_path / "o")
     args[args.index("--mbps") + 1] = "1e-300"
     line = one_error_line(capsys, *args)
-    assert line.startswith("error: mbps: 1e-300 Mbit/s gives 0 bytes in every one of the 2 slots"), line
+    assert line.startswith("error: --mbps: 1e-300 Mbit/s gives 0 bytes in every one of the 2 slots"), line
     assert not (tmp_path / "o" / "index.json").exists()
 
 
@@ -85,7 +85,7 @@ def test_fetch_retry_has_an_upper_limit(world, capsys, tmp_path):
     args = _fetch_args(world, tmp_path / "o")
     args[args.index("--retry-s") + 1] = "1e12"
     line = one_error_line(capsys, *args)
-    assert line == f"error: retry_s: 1000000000000.0: expected seconds in [0, {MAX_RETRY_S:g}] (MAX_RETRY_S)", line
+    assert line == f"error: --retry-s: 1000000000000.0: expected seconds in [0, {MAX_RETRY_S:g}] (MAX_RETRY_S)", line
 
 
 # -- 4: fetch --out / bundle export --out into a bundle or another export wrote over its files
@@ -95,7 +95,7 @@ def test_fetch_refuses_out_holding_a_bundle_or_export(world, capsys, tmp_path, k
     shutil.copytree(world[kind], target)
     before = _digests(target)
     line = one_error_line(capsys, *_fetch_args(world, target))
-    assert line.startswith(f"error: out: {target} holds {what}"), line
+    assert line.startswith(f"error: --out: {target} holds {what}"), line
     assert _digests(target) == before
 
 

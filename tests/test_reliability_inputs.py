@@ -189,7 +189,7 @@ def test_item7_size_limits_of_text_readers(world, tmp_path, monkeypatch):
 @pytest.mark.parametrize("flag, value", [("--pw", "inf"), ("--pw", "nan"), ("--hw", "inf"), ("--hw", "-1")])
 def test_item8_predict_viewport_infinite_window(world, capsys, flag, value):
     line = one_error_line(capsys, "predict", "viewport", world / "viewer.log", flag, value)
-    assert line.startswith(f"error: {flag[2:]} = ") and "finite number of seconds > 0" in line
+    assert line.startswith(f"error: {flag} = ") and "finite number of seconds > 0" in line
 
 
 def test_item8_predict_viewport_window_longer_than_the_log_is_capped(world):
@@ -244,7 +244,7 @@ def test_item9_huge_trace_refused_up_front(world, tmp_path, capsys):
         mbps_to_bytes(np.array([1.0, 1e10]), slot_s=1000.0)
     with pytest.raises(TraceError, match=r"mbps\[0\] = nan"):
         mbps_to_bytes(np.array([np.nan]))
-    with pytest.raises(TraceError, match="target mean 1e"):
+    with pytest.raises(TraceError, match=r"mbps = 1e\+308 \(the target mean"):
         read_bandwidth_trace(world / "trace.txt").scaled(1e308)
     with pytest.raises(LinkError, match=r"bandwidth\[0\] = 9007199254740993: more than 2\^53"):
         Link([2**53 + 1])

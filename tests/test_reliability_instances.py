@@ -395,10 +395,10 @@ def test_item8_synth_output_on_a_folder(capsys, tmp_path):
     one_line_error(capsys, "instance", "synth", "--slots", "2", "-o", tmp_path / "plain" / "i.json", field="file")
 
 
-@pytest.mark.parametrize("args, field", [(["--objects", "-1"], "objects"), (["--layers", "0"], "layers"),
-                                         (["--slots", "0"], "slots"), (["--seed", "-1"], "seed"),
-                                         (["--objects", "100000000"], "objects"),
-                                         (["--layers", "100000000"], "objects")])
+@pytest.mark.parametrize("args, field", [(["--objects", "-1"], "--objects"), (["--layers", "0"], "--layers"),
+                                         (["--slots", "0"], "--slots"), (["--seed", "-1"], "--seed"),
+                                         (["--objects", "100000000"], "--objects"),
+                                         (["--layers", "100000000"], "--objects")])
 def test_item8_synth_counts(capsys, tmp_path, args, field):
     one_line_error(capsys, "instance", "synth", *args, "-o", tmp_path / "s.json", field=field)
     assert MAX_SYNTH_ENTRIES == 2**24

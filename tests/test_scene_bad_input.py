@@ -57,7 +57,7 @@ def _patched_ply(src: Path, dst: Path, prop: str, value: float, row: int = 0) ->
 
 # ------------------------------------------------------------------ 1. negative seed
 def test_negative_seed_is_refused_by_name(capsys, tmp_path, scene_file):
-    want = "error: seed = -1: must be an integer >= 0"
+    want = "error: --seed = -1: must be an integer >= 0"
     assert one_error_line(capsys, "scene", "make", "--out", tmp_path / "m.ply", "--splats", 1000, "--seed", -1) == want
     assert not (tmp_path / "m.ply").exists()
     assert one_error_line(capsys, "scene", "segment", scene_file, "--seed", -1, "--out", tmp_path / "g.ply") == want
@@ -73,7 +73,7 @@ def test_negative_seed_is_refused_by_name(capsys, tmp_path, scene_file):
 def test_views_beyond_the_limit_are_refused_before_any_work(capsys, tmp_path):
     line = one_error_line(capsys, "scene", "make", "--out", tmp_path / "m.ply", "--splats", 1000,
                           "--orbit", tmp_path / "o.json", "--views", MAX_PATH_VIEWS + 1)
-    assert line.startswith(f"error: n_views: {MAX_PATH_VIEWS + 1} must be an integer in [1, ")
+    assert line.startswith(f"error: --views: {MAX_PATH_VIEWS + 1} must be an integer in [1, ")
     assert "MAX_PATH_VIEWS" in line
     assert not (tmp_path / "m.ply").exists() and not (tmp_path / "o.json").exists()
     for path in (orbit_path, walk_path):

@@ -375,7 +375,7 @@ def test_cli_simulate_error_is_one_line(world, capsys):
     code = main(["simulate", str(world["root"] / "sort"), "--trace", "lumos-throughput-mid-11", "--slots", "3",
                  "--path", str(world["log"]), "--method", "separate", "--no-progress"])
     err = capsys.readouterr().err
-    assert code == 2 and err.startswith("error: method: 'separate' needs a separate bundle") and err.count("\n") == 1
+    assert code == 2 and err.startswith("error: --method: 'separate' needs a separate bundle") and err.count("\n") == 1
 
 
 # ---------------------------------------------------------------------------------------- distill
@@ -767,9 +767,9 @@ def test_cli_simulate_resume_and_new_options(world, tmp_path, monkeypatch, capsy
     assert [strip(x) for x in (tmp_path / "cut" / "slots.jsonl").read_text().splitlines()] == \
         [strip(x) for x in (tmp_path / "whole" / "slots.jsonl").read_text().splitlines()]
     code = main(args[:-1] + ["--resume"])
-    assert code == 2 and capsys.readouterr().err.startswith("error: resume: needs --out")
+    assert code == 2 and capsys.readouterr().err.startswith("error: --resume: needs --out")
     code = main(args[:-1] + ["--sh-upgrade-utility", "1.5"])
-    assert code == 2 and "sh_upgrade_utility: 1.5" in capsys.readouterr().err
+    assert code == 2 and "--sh-upgrade-utility: 1.5" in capsys.readouterr().err
 
 
 def test_summary_is_typed_and_is_the_record_on_disk(world, tmp_path):

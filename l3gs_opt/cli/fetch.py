@@ -14,7 +14,7 @@ __all__ = ["register"]
 
 
 def _cmd_fetch(args: argparse.Namespace) -> int:
-    from l3gs_opt.cli.simulate import load_viewer_path
+    from l3gs_opt.cli.simulate import load_viewer_path, viewer_path_rate
     from l3gs_opt.delivery.fetch import FetchError, fetch
     from l3gs_opt.pipeline.scene_instance import Z_UP_MAPPING
     from l3gs_opt.simulator.simulation import SimConfig
@@ -22,14 +22,11 @@ def _cmd_fetch(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise FetchError("--out", f"{args.out} is a file: expected a folder")
-    if args.path_rate is not None and args.path_format != "cameras":
-        raise FetchError("--path-rate", f"{args.path_rate!r}: only --path-format cameras reads it, not "
-                                        f"{args.path_format!r}")
+    rate = viewer_path_rate(args.path_rate, args.path_format)
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
                        bandwidth_predictor=args.bandwidth_predictor, utility=args.utility, carry=args.carry)
     mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
-    rate = 30.0 if args.path_rate is None else args.path_rate
     poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=rate)
     result = fetch(args.url, args.trace, poses, args.method, args.out, slots=args.slots, resume=args.resume,
                    config=config, solver=args.solver, mbps=args.mbps, start=args.start,
@@ -61,10 +58,10 @@ def _cmd_serve(args: argparse.Namespace) -> int:
                 raise ServerError(flag, f"{value!r}: needs --trace (without one the server does not pace)")
     trace = None if args.trace is None else trace_shaper(args.trace, mbps=args.mbps,
                                                          format=args.trace_format or "auto")
-    print(f"serving {args.folder} on http://{args.host}:{args.port}"
-          + ("" if trace is None else f", paced to {args.trace}") + " (Ctrl-C stops)", flush=True)
     run_server(args.folder, host=args.host, port=args.port, trace=trace,
-               shape_anonymous=not args.no_anonymous_pacing)
+               shape_anonymous=not args.no_anonymous_pacing,
+               announce=f"serving {args.folder} on http://{args.host}:{args.port}"
+                        + ("" if trace is None else f", paced to {args.trace}") + " (Ctrl-C stops)")
     return 0
 
 

@@ -7,6 +7,7 @@ as one line on stderr with exit code 2; argparse's own usage errors also exit 2.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -393,7 +394,39 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-experiments", action="store_true",
                    help="skip step 5, the quick run of the paper's experiments (~6-15 min)")
     d.set_defaults(func=_cmd_demo)
+    _record_options(parser)
     return parser
+
+
+def _record_options(parser: argparse.ArgumentParser) -> None:
+    """Give each command's parser the map of its options (``dest -> --option``), which
+    :func:`option_wording` reads."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _record_options(sub)
+            return
+    options = {a.dest: max(a.option_strings, key=len) for a in parser._actions
+               if a.option_strings and a.dest != "help"}
+    parser.set_defaults(cli_options=options)
+
+
+#: Library fields whose command-line option has another name (field -> the option's ``dest``).
+FIELD_OPTIONS = {"fov_deg": "fov", "fov_x_deg": "fov", "time_limit_s": "time_limit",
+                 "ceiling_time_limit_s": "time_limit", "ceiling_check_s": "check_time", "window_s": "window",
+                 "alignment": "align", "num_splats": "splats", "n_views": "views"}
+_LEADING_FIELD = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?=[:\[ ]|$)")
+
+
+def option_wording(text: str, options: dict[str, str]) -> str:
+    """An error line as the command line's user wrote it: a message that starts with a library
+    field (``slot_s: -7.0: ...``) names the option the value came from (``--slot-s: -7.0: ...``),
+    when the command has that option. Other messages are left as they are."""
+    m = _LEADING_FIELD.match(text)
+    if m is None:
+        return text
+    option = options.get(FIELD_OPTIONS.get(m.group(1), m.group(1)))
+    return text if option is None else option + text[m.end():]
 
 
 #: Options that name where a command writes: an empty one would mean the current folder.
@@ -413,7 +446,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except L3gsError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {option_wording(str(exc), getattr(args, 'cli_options', {}))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

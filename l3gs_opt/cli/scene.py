@@ -110,6 +110,8 @@ def _cmd_scene_make(args: argparse.Namespace) -> int:
     # the camera paths first: a bad size or background fails before any file is written
     paths = [(kind, make(args.views, **kw), out) for kind, make, out in (("orbit", orbit_path, args.orbit),
                                                                          ("walk", walk_path, args.walk)) if out]
+    if not paths:   # no path is written: the camera options are still checked, not taken in silence
+        orbit_path(args.views, **kw)
     scene = make_scene(args.splats, objects=args.objects, sh_degree=args.sh_degree, seed=args.seed)
     path = write_ply(scene, args.out)
     print(f"wrote {path}: {scene!r}, {path.stat().st_size} bytes")

@@ -24,6 +24,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                        splat_order=args.splat_order, carry=args.carry, decision_s=args.decision_s, time_limit_s=args.time_limit, horizon=args.horizon, fill=not args.no_fill,
                        backend=args.backend, substeps=args.substeps, bandwidth_bias=args.bandwidth_bias,
                        sh_upgrade_utility=args.sh_upgrade_utility)
+    rate = viewer_path_rate(args.path_rate, args.path_format)
     if args.resume and not args.out:
         raise SimulationError("resume", "needs --out (the folder of the interrupted run)")
     if args.save_views and not args.out:
@@ -38,7 +39,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     bandwidth, info = trace_bytes(args.trace, mbps=args.mbps, start=args.start, slots=args.slots,
                                   slot_s=args.slot_s, format=args.trace_format)
     mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
-    poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=args.path_rate, eye=args.eye)
+    poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=rate, eye=args.eye)
     reference = args.teacher
     if reference is None:   # the teacher the bundle was built from
         from l3gs_opt.pipeline.build import IN_MEMORY_TEACHER
@@ -82,6 +83,16 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 PATH_FORMATS = ("log", "eyenavgs", "cameras")
+
+
+def viewer_path_rate(rate_hz: float | None, fmt: str) -> float:
+    """``--path-rate`` (camera matrices per second; default 30), refused with a format that has
+    its own clock: taken there, it would do nothing."""
+    if rate_hz is not None and fmt != "cameras":
+        from l3gs_opt.traces.poses import PoseError
+
+        raise PoseError(f"--path-rate: {rate_hz!r}: only --path-format cameras reads it, not {fmt!r}")
+    return 30.0 if rate_hz is None else rate_hz
 
 
 def load_viewer_path(path, fmt: str, *, mapping, rate_hz: float = 30.0, eye: str = "centre"):
@@ -130,7 +141,8 @@ def register(subparsers) -> None:
     p.add_argument("--path-format", default="log", choices=list(PATH_FORMATS),
                    help="log: headset pose log (default); eyenavgs: an EyeNavGS 6DoF CSV (scene frame); "
                         "cameras: 4x4 world-to-camera matrices, blank line between, at --path-rate")
-    p.add_argument("--path-rate", type=float, default=30.0, help="--path-format cameras: matrices per second")
+    p.add_argument("--path-rate", type=float, default=None,
+                   help="--path-format cameras: matrices per second (default 30)")
     p.add_argument("--eye", default="centre", choices=["centre", "left", "right"],
                    help="--path-format eyenavgs: which eye's camera (centre: between the two)")
     p.add_argument("--method", required=True,

@@ -424,8 +424,11 @@ def start_server(folder, host: str = "127.0.0.1", port: int = 0, trace=None, *,
 
 
 def run_server(folder, host: str = "127.0.0.1", port: int = 8000, trace=None, *,
-               shape_anonymous: bool = True) -> None:
-    """Serve ``folder`` in the foreground until interrupted (the ``serve`` command)."""
+               shape_anonymous: bool = True, announce: Optional[str] = None) -> None:
+    """Serve ``folder`` in the foreground until interrupted (the ``serve`` command); ``announce`` is
+    printed once the server listens (not before its checks: a refused folder or address prints
+    only its error)."""
     _check_bind(host, port)
-    web.run_app(make_app(folder, trace=trace, shape_anonymous=shape_anonymous), host=host, port=port,
-                access_log=None, print=None)
+    app = make_app(folder, trace=trace, shape_anonymous=shape_anonymous)
+    web.run_app(app, host=host, port=port, access_log=None,
+                print=None if announce is None else (lambda _aiohttp_line: print(announce, flush=True)))
