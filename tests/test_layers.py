@@ -19,7 +19,8 @@ SOURCES = {"l3gs_opt": ROOT / "l3gs_opt", "l3gs_opt.models": ROOT / "models",
            "l3gs_opt.solvers": ROOT / "solvers", "l3gs_opt.renderer": ROOT / "renderer"}
 #: Rank of each package or module: a module may import its own rank or lower ones only.
 LAYERS = {
-    "l3gs_opt.errors": 0, "l3gs_opt.input_files": 0, "l3gs_opt.jsonout": 0, "l3gs_opt.output_files": 0,
+    "l3gs_opt.errors": 0, "l3gs_opt.checks": 0, "l3gs_opt.input_files": 0, "l3gs_opt.jsonout": 0,
+    "l3gs_opt.output_files": 0,
     "l3gs_opt.records": 0,
     "l3gs_opt.executors": 0, "l3gs_opt.stop": 0,
     "l3gs_opt.data": 0,

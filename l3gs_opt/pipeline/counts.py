@@ -8,11 +8,9 @@ states why it is where it is.
 
 from __future__ import annotations
 
-from typing import Callable
-
-import numpy as np
-
-from l3gs_opt.errors import L3gsError
+# The check itself is shared by every layer (the traces check their counts the same way).
+from l3gs_opt.checks import ArgumentError as CountError
+from l3gs_opt.checks import check_count
 
 __all__ = ["CountError", "check_count", "MAX_SAMPLES_PER_SLOT", "MAX_SUBSTEPS", "MAX_YAW_STEPS",
            "MAX_GRID_POSITIONS", "MAX_FIDELITY_SAMPLES"]
@@ -31,24 +29,3 @@ MAX_GRID_POSITIONS = 100_000
 #: chunk (144 on the 180k-splat room, ``benchmarks/results/utility_fidelity``, which used 8 and 16);
 #: 10000 is days of rendering already.
 MAX_FIDELITY_SAMPLES = 10_000
-
-
-class CountError(L3gsError, ValueError):
-    """A count out of its range; the message starts with the field."""
-
-    def __init__(self, field: str, message: str):
-        self.field = field
-        super().__init__(f"{field}: {message}")
-
-
-def check_count(field: str, value: object, *, high: int, low: int = 1,
-                error: Callable[[str, str], Exception] = CountError) -> int:
-    """``value`` as an int if it is an integer in ``[low, high]``, else raise ``error(field, message)``.
-
-    ``error`` takes the field and the message (``"0: must be an integer in [1, 1000]"``), as
-    :class:`~l3gs_opt.simulator.config.SimulationError` and :class:`~l3gs_opt.errors.InstanceError`
-    do, so each caller raises its own error class.
-    """
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
-        raise error(field, f"{value!r}: must be an integer in [{low}, {high}]")
-    return int(value)

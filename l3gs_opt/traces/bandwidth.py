@@ -71,13 +71,15 @@ from pathlib import Path
 
 import numpy as np
 
+from l3gs_opt.checks import (check_count, check_number, check_path, check_seed, field_error, is_real, real_array,
+                             shown)
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_text
 
 __all__ = ["TraceError", "AmbiguousTraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace",
            "mbps_to_bytes", "synthetic_bandwidth", "iter_lines", "TRACE_FORMATS", "detect_format", "write_mahimahi",
            "MAHIMAHI_PACKET_BYTES", "MIN_AUTO_MAHIMAHI_LINES", "MAX_MBPS", "MAX_TRACE_SAMPLES", "MAX_TRACE_FILE_BYTES",
-           "MAX_SLOT_BYTES"]
+           "MAX_SLOT_BYTES", "MAX_VARIABILITY"]
 
 #: Largest throughput sample read (Mbit/s): 10 Tbit/s, ~5000 x the fastest 5G trace bundled. A
 #: larger value is a unit mistake or corruption; refusing it (rather than clipping it) keeps the
@@ -89,6 +91,11 @@ MAX_TRACE_SAMPLES = 10**6
 MAX_TRACE_FILE_BYTES = 32 * 2**20
 #: Largest byte count of one slot (2^53: every count is exact in float64 too, as instances require).
 MAX_SLOT_BYTES = 2**53
+#: Largest ``variability`` of :func:`synthetic_bandwidth` (standard deviation of the natural log of
+#: the throughput): 3x the bundled Lumos5G traces' 1.0-1.7. Already at 5 one second of a 600 s
+#: trace carries 25-60% of its bytes; and a trace of MAX_TRACE_SAMPLES samples reaches |log| ~ 27,
+#: far from float64's overflow of exp at 709 (a 140-sigma draw), so the trace is always finite.
+MAX_VARIABILITY = 5.0
 
 
 #: The values of ``read_bandwidth_trace(..., format=)``.
@@ -123,11 +130,31 @@ class BandwidthTrace:
     sample_s: float = 1.0
     skipped: int = 0
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str):
+            raise TraceError(f"name = {shown(self.name)}: must be a string")
+        # Float arrays are kept as given (the readers' float64); lists and integer arrays become float64.
+        mbps = real_array("mbps", self.mbps, _trace_error)
+        if mbps.ndim != 1 or len(mbps) < 1:
+            raise TraceError(f"{self.name}: mbps: shape {mbps.shape} must be [N] with N >= 1")
+        bad = ~(mbps >= 0) | ~np.isfinite(mbps)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise TraceError(f"{self.name}: mbps[{i}] = {float(mbps[i])!r}: must be finite and >= 0 Mbit/s")
+        object.__setattr__(self, "mbps", mbps)
+        object.__setattr__(self, "sample_s", check_number("sample_s", self.sample_s, lambda x: x > 0,
+                                                          "a positive number of seconds", _trace_error))
+        # A skipped line takes at least one byte of a file no larger than MAX_TRACE_FILE_BYTES.
+        object.__setattr__(self, "skipped", check_count("skipped", self.skipped, low=0, high=MAX_TRACE_FILE_BYTES,
+                                                                error=_trace_error))
+
     def scaled(self, target_mean_mbps: float) -> tuple["BandwidthTrace", float]:
-        """The trace scaled so its mean is ``target_mean_mbps``; returns it and the factor."""
+        """The trace scaled so its mean is ``target_mean_mbps`` (Mbit/s, in (0, MAX_MBPS]); returns
+        it and the factor."""
         mean = float(self.mbps.mean())
-        if not (0 < target_mean_mbps <= MAX_MBPS):
-            raise TraceError(f"target mean {target_mean_mbps!r} Mbit/s: must be a positive number <= {MAX_MBPS:g}")
+        if not (is_real(target_mean_mbps) and 0 < target_mean_mbps <= MAX_MBPS):
+            raise TraceError(f"mbps = {shown(target_mean_mbps)} (the target mean, Mbit/s): must be a positive "
+                             f"number <= {MAX_MBPS:g}")
         if mean <= 0:
             raise TraceError(f"{self.name}: mean throughput is 0, cannot scale")
         factor = target_mean_mbps / mean
@@ -135,6 +162,10 @@ class BandwidthTrace:
 
     def window(self, start: int, length: int) -> "BandwidthTrace":
         """Samples ``start .. start+length-1``; an error if the trace is shorter."""
+        # Integers only: a float would be truncated by a slice, or refused by it with a raw TypeError.
+        for field, value in (("start", start), ("length", length)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise TraceError(f"{self.name}: window {field} = {shown(value)}: must be an integer (samples)")
         if start < 0 or length < 1 or start + length > len(self.mbps):
             raise TraceError(f"{self.name}: window start={start} length={length} does not fit "
                              f"{len(self.mbps)} samples")
@@ -166,8 +197,8 @@ def iter_lines(text: str, *, block_chars: int = 1 << 20):
         start = end
 
 
-def _trace_error(field: str, message: str) -> TraceError:
-    return TraceError(f"{field}: {message}")
+#: The ``error`` of the shared checks (:mod:`l3gs_opt.checks`) and of ``read_text``.
+_trace_error = field_error(TraceError)
 
 
 def read_bandwidth_trace(path: str | os.PathLike[str], *, format: str = "auto") -> BandwidthTrace:
@@ -199,12 +230,12 @@ def read_bandwidth_trace(path: str | os.PathLike[str], *, format: str = "auto") 
     AmbiguousTraceError
         ``format="auto"`` and the content fits more than one format.
     """
-    if format not in TRACE_FORMATS:
-        raise TraceError(f"format = {format!r}: must be one of {', '.join(TRACE_FORMATS)}")
+    if not isinstance(format, str) or format not in TRACE_FORMATS:
+        raise TraceError(f"format = {shown(format)}: must be one of {', '.join(TRACE_FORMATS)}")
+    path = check_path(path, error=_trace_error)
     bundled = bundled_traces()
-    if not Path(path).exists() and str(path) in bundled:
+    if not path.exists() and str(path) in bundled:
         path = bundled[str(path)]
-    path = Path(path)
     if not path.exists() and not path.is_symlink():
         raise TraceError(f"{path}: no such trace file (bundled traces: {', '.join(sorted(bundled))})")
     text = read_text(path, _trace_error, field="trace", max_bytes=MAX_TRACE_FILE_BYTES, errors="replace")
@@ -509,12 +540,14 @@ def mbps_to_bytes(mbps: np.ndarray, slot_s: float = 1.0) -> np.ndarray:
     Raises
     ------
     TraceError
-        A sample that is negative or not finite, a slot length that is not a positive number, or
-        a byte count above :data:`MAX_SLOT_BYTES` (naming the sample).
+        ``mbps`` that is not a one-dimensional sequence of numbers (bools and strings included), a
+        sample that is negative or not finite, a slot length that is not a positive number, or a
+        byte count above :data:`MAX_SLOT_BYTES` (naming the sample).
     """
-    if not (isinstance(slot_s, (int, float, np.floating, np.integer)) and 0 < slot_s < math.inf):
-        raise TraceError(f"slot_s = {slot_s!r}: must be a positive number of seconds")
-    x = np.asarray(mbps, dtype=np.float64)
+    slot_s = check_number("slot_s", slot_s, lambda s: s > 0, "a positive number of seconds", _trace_error)
+    x = real_array("mbps", mbps, _trace_error).astype(np.float64, copy=False)
+    if x.ndim != 1:
+        raise TraceError(f"mbps: shape {x.shape} must be [N] (one Mbit/s value per slot)")
     bad = ~(x >= 0) | ~np.isfinite(x)
     if bad.any():
         i = int(np.argmax(bad))
@@ -543,34 +576,43 @@ def synthetic_bandwidth(seconds: int = 60, mean_mbps: float = 11.8, *, variabili
     Parameters
     ----------
     seconds : int
-        Number of samples (s), >= 1.
+        Number of samples (s), 1 .. :data:`MAX_TRACE_SAMPLES` (the readers' limit).
     mean_mbps : float
-        Target mean throughput (Mbit/s), > 0.
+        Target mean throughput (Mbit/s), in (0, :data:`MAX_MBPS`].
     variability : float
-        Standard deviation of the log-throughput (>= 0; 0 gives a constant trace between outages).
+        Standard deviation of the natural log of the throughput, in [0, :data:`MAX_VARIABILITY`]
+        (0 gives a constant trace between outages).
     outage_rate : float
         Probability that an outage starts in a given second, in [0, 1).
     outage_s : (int, int)
-        Shortest and longest outage (s), 1 <= lo <= hi.
+        Shortest and longest outage (s), integers with 1 <= lo <= hi <= :data:`MAX_TRACE_SAMPLES`.
     correlation : float
         Lag-one correlation of the log-throughput, in [0, 1).
     seed : int
+        >= 0.
 
     Raises
     ------
     TraceError
-        An argument out of range (named), or a trace that is all outage.
+        An argument of the wrong type or out of range (named), or a trace that is all outage.
     """
-    if not (isinstance(seconds, (int, np.integer)) and seconds >= 1):
-        raise TraceError(f"seconds = {seconds!r}: must be an integer >= 1")
-    checks = [("mean_mbps", mean_mbps, mean_mbps > 0), ("variability", variability, variability >= 0),
-              ("outage_rate", outage_rate, 0 <= outage_rate < 1), ("correlation", correlation, 0 <= correlation < 1)]
-    for name, value, ok in checks:
-        if not (math.isfinite(value) and ok):
-            raise TraceError(f"{name} = {value!r}: out of range (see the docstring)")
-    lo, hi = outage_s
-    if not (1 <= lo <= hi):
-        raise TraceError(f"outage_s = {outage_s!r}: must be (lo, hi) with 1 <= lo <= hi")
+    # The cap bounds the per-second Python loop below (~2 s at the cap) and the arrays it fills.
+    seconds = check_count("seconds", seconds, high=MAX_TRACE_SAMPLES, error=_trace_error)
+    mean_mbps = check_number("mean_mbps", mean_mbps, lambda x: 0 < x <= MAX_MBPS,
+                             f"a number in (0, {MAX_MBPS:g}] Mbit/s (MAX_MBPS)", _trace_error)
+    # A documented cap rather than a finiteness check after exp: well below overflow (variability
+    # ~100) one sample already carries nearly the whole trace, which no finite check would catch.
+    variability = check_number("variability", variability, lambda x: 0 <= x <= MAX_VARIABILITY,
+                               f"a number in [0, {MAX_VARIABILITY:g}] (MAX_VARIABILITY)", _trace_error)
+    outage_rate = check_number("outage_rate", outage_rate, lambda x: 0 <= x < 1, "a number in [0, 1)", _trace_error)
+    correlation = check_number("correlation", correlation, lambda x: 0 <= x < 1, "a number in [0, 1)", _trace_error)
+    want = f"a pair (lo, hi) of integers with 1 <= lo <= hi <= {MAX_TRACE_SAMPLES} (MAX_TRACE_SAMPLES)"
+    if not (isinstance(outage_s, (tuple, list)) and len(outage_s) == 2
+            and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in outage_s)
+            and 1 <= outage_s[0] <= outage_s[1] <= MAX_TRACE_SAMPLES):
+        raise TraceError(f"outage_s = {shown(outage_s)}: must be {want}")
+    lo, hi = int(outage_s[0]), int(outage_s[1])
+    seed = check_seed(seed, error=_trace_error)
     rng = np.random.default_rng(seed)
     innovation = variability * math.sqrt(1.0 - correlation ** 2)
     g = np.empty(seconds)

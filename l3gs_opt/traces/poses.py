@@ -29,13 +29,14 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from l3gs_opt.checks import check_count, check_number, check_path, check_seed, field_error, real_array
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import read_text
-from l3gs_opt.traces.bandwidth import iter_lines
+from l3gs_opt.traces.bandwidth import MAX_TRACE_SAMPLES, iter_lines
 
 __all__ = ["PoseError", "PoseTrace", "PoseMapping", "read_pose_log", "write_pose_log", "read_camera_path",
            "write_camera_path", "synthetic_poses", "euler_to_matrix", "MAX_POSITION_M", "MAX_ANGLE_DEG",
-           "MAX_POSE_FILE_BYTES"]
+           "MAX_POSE_FILE_BYTES", "MAX_POSE_SAMPLES", "MAX_POSE_SECONDS"]
 
 #: Largest |coordinate| of a head position (m): 1000 km, far beyond any tracked space.
 MAX_POSITION_M = 1e6
@@ -43,10 +44,24 @@ MAX_POSITION_M = 1e6
 MAX_ANGLE_DEG = 1e6
 #: Largest pose log or camera path file read (bytes): ~250,000 poses of ~250 characters, a day at 30 Hz.
 MAX_POSE_FILE_BYTES = 64 * 2**20
+#: Most samples :func:`synthetic_poses` makes: the bandwidth traces' MAX_TRACE_SAMPLES (9 hours at
+#: 30 Hz; ~60 MB of arrays), so that a mistyped duration is refused before anything is allocated.
+MAX_POSE_SAMPLES = MAX_TRACE_SAMPLES
+#: Longest :func:`synthetic_poses` path (s): the longest bandwidth trace, MAX_TRACE_SAMPLES one-second
+#: samples (11.6 days); a path beyond every trace drives nothing. It also bounds ``fast_turns``,
+#: which draws a head turn for every second.
+MAX_POSE_SECONDS = float(MAX_TRACE_SAMPLES)
+#: Tolerance on ``R R^T = I`` for a camera path's rotation block: ``scene.cameras.ROTATION_TOL``,
+#: which traces cannot import (scene imports traces). Rounded decimals pass; a scale or shear does not.
+_ROTATION_TOL = 1e-4
 
 
 class PoseError(L3gsError, ValueError):
     """A pose log or camera path is missing, empty or malformed."""
+
+
+#: The ``error`` of the shared checks (:mod:`l3gs_opt.checks`).
+_pose_error = field_error(PoseError)
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +86,11 @@ class PoseTrace:
     skipped: int = 0
 
     def __post_init__(self) -> None:
+        # Lists (and integer arrays) become float64 arrays; float arrays are kept as given.
+        for field in ("time_s", "position", "rotation_deg"):
+            object.__setattr__(self, field, real_array(field, getattr(self, field), _pose_error))
+        if self.time_s.ndim != 1 or len(self.time_s) < 1:
+            raise PoseError(f"time_s: shape {self.time_s.shape} must be [N] with N >= 1")
         n = len(self.time_s)
         if self.position.shape != (n, 3) or self.rotation_deg.shape != (n, 3):
             raise PoseError(f"pose arrays disagree: time {n}, position {self.position.shape}, "
@@ -78,6 +98,16 @@ class PoseTrace:
         if not np.all(np.isfinite(self.time_s)):
             i = int(np.argmax(~np.isfinite(self.time_s)))
             raise PoseError(f"time_s[{i}] = {float(self.time_s[i])!r}: must be finite")
+        # Strictly increasing, as every reader makes it: a step back or a repeat would make
+        # rate_hz (1 / the median step) negative or infinite and the pose at a time ambiguous.
+        steps = np.diff(self.time_s)
+        if (steps <= 0).any():
+            i = int(np.argmax(steps <= 0)) + 1
+            raise PoseError(f"time_s[{i}] = {float(self.time_s[i])!r}: must increase "
+                            f"(previous {float(self.time_s[i - 1])!r})")
+        # A skipped line takes at least one byte of a log no larger than MAX_POSE_FILE_BYTES.
+        object.__setattr__(self, "skipped", check_count("skipped", self.skipped, low=0, high=MAX_POSE_FILE_BYTES,
+                                                                error=_pose_error))
         _check_pose_values(self.position, self.rotation_deg, lambda i: f"sample {i}",
                            ("position", "rotation_deg"))
 
@@ -102,10 +132,6 @@ _LINE = re.compile(rf"^\s*(\d{{4}}-\d\d-\d\d \d\d:\d\d:\d\d(?:\.\d+)?)\s*,\s*Hea
 _EPOCH = datetime(1970, 1, 1)
 
 
-def _pose_error(field: str, message: str) -> PoseError:
-    return PoseError(f"{field}: {message}")
-
-
 def _check_pose_values(position: np.ndarray, rotation_deg: np.ndarray, where: Callable[[int], str],
                        names: tuple[str, str]) -> None:
     """Refuse a non-finite or non-physical pose: ``where(row)`` and ``names`` (position, rotation)
@@ -126,9 +152,10 @@ def read_pose_log(path: str | os.PathLike[str]) -> PoseTrace:
     ------
     PoseError
         Missing or non-regular file, no parsable line after the leading not-tracking lines, a
-        non-finite or non-physical pose (naming the line and the field), timestamps going backwards.
+        non-finite or non-physical pose (naming the line and the field), timestamps going backwards,
+        a ``path`` that is not a str or path.
     """
-    path = Path(path)
+    path = check_path(path, error=_pose_error)
     if not path.exists() and not path.is_symlink():
         raise PoseError(f"{path}: no such pose log")
     text = read_text(path, _pose_error, field="pose log", max_bytes=MAX_POSE_FILE_BYTES, errors="replace")
@@ -298,8 +325,16 @@ def poses_from_cameras(world_to_camera: np.ndarray, time_s: np.ndarray,
 
 
 def read_camera_path(path: str | os.PathLike[str]) -> np.ndarray:
-    """Camera path file: 4x4 world-to-camera matrices, 4 rows each, blank line between -> ``[N, 4, 4]``."""
-    path = Path(path)
+    """Camera path file: 4x4 world-to-camera matrices, 4 rows each, blank line between -> ``[N, 4, 4]``.
+
+    Raises
+    ------
+    PoseError
+        Missing file, no matrix, a block that is not 4 rows of 4 finite numbers (naming the row),
+        a last row other than ``0 0 0 1`` or a rotation block that is not a rotation (naming the
+        matrix), a ``path`` that is not a str or path.
+    """
+    path = check_path(path, error=_pose_error)
     if not path.exists() and not path.is_symlink():
         raise PoseError(f"{path}: no such camera path")
     text = read_text(path, _pose_error, field="camera path", max_bytes=MAX_POSE_FILE_BYTES)
@@ -309,12 +344,30 @@ def read_camera_path(path: str | os.PathLike[str]) -> np.ndarray:
     mats = []
     for k, block in enumerate(blocks):
         rows = [r.split() for r in block.strip().splitlines()]
-        try:
-            m = np.array([[float(v) for v in row] for row in rows])
-        except ValueError:
-            raise PoseError(f"{path}: matrix {k}: entries must be numbers") from None
-        if m.shape != (4, 4) or not np.isfinite(m).all():
-            raise PoseError(f"{path}: matrix {k}: expected 4 rows of 4 finite numbers, got shape {m.shape}")
+        # Row by row, so that a short row is named as such, not as an entry that is not a number.
+        for r, row in enumerate(rows):
+            try:
+                values = [float(v) for v in row]
+            except ValueError:
+                raise PoseError(f"{path}: matrix {k}: row {r}: entries must be numbers") from None
+            if len(values) != 4:
+                raise PoseError(f"{path}: matrix {k}: row {r} has {len(values)} entries: expected 4 rows of 4 "
+                                f"finite numbers")
+            for c, v in enumerate(values):
+                if not math.isfinite(v):
+                    raise PoseError(f"{path}: matrix {k}: row {r}, entry {c} = {v!r}: must be finite")
+        if len(rows) != 4:
+            raise PoseError(f"{path}: matrix {k}: expected 4 rows of 4 finite numbers, got {len(rows)} rows")
+        m = np.array([[float(v) for v in row] for row in rows])
+        # A world-to-camera matrix is rigid, [[R, t], [0, 0, 0, 1]], as Camera requires: anything
+        # else would be turned into a pose (poses_from_cameras) that is silently wrong.
+        if not np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]):
+            raise PoseError(f"{path}: matrix {k}: last row {m[3].tolist()} must be [0, 0, 0, 1]")
+        rot = m[:3, :3]
+        err = float(np.abs(rot @ rot.T - np.eye(3)).max())
+        if err > _ROTATION_TOL or np.linalg.det(rot) < 0:
+            raise PoseError(f"{path}: matrix {k}: rotation block is not a rotation "
+                            f"(|R R^T - I| = {err:.2e}, det = {np.linalg.det(rot):.4f})")
         mats.append(m)
     return np.stack(mats)
 
@@ -328,9 +381,29 @@ def write_camera_path(matrices: np.ndarray, path: str | os.PathLike[str]) -> Pat
 
 def synthetic_poses(kind: str = "walk", *, seconds: float = 60.0, rate_hz: float = 30.0, seed: int = 0) -> PoseTrace:
     """Synthetic head motion: ``walk`` (slow walk, gentle head turns), ``orbit`` (circling a
-    point while looking at it), ``fast_turns`` (standing, quick 60-120 degree head turns)."""
-    rng = np.random.default_rng(seed)
-    n = int(round(seconds * rate_hz))
+    point while looking at it), ``fast_turns`` (standing, quick 60-120 degree head turns).
+
+    ``seconds`` (s) is in (0, :data:`MAX_POSE_SECONDS`] and ``rate_hz`` (Hz) finite and > 0; the path
+    has ``round(seconds * rate_hz)`` samples, 1 .. :data:`MAX_POSE_SAMPLES`. ``seed`` is an integer >= 0.
+
+    Raises
+    ------
+    PoseError
+        An unknown ``kind``, or an argument of the wrong type or out of range (named).
+    """
+    if not isinstance(kind, str) or kind not in ("walk", "orbit", "fast_turns"):
+        raise PoseError(f"synthetic pose kind {kind!r} is not one of walk, orbit, fast_turns")
+    seconds = check_number("seconds", seconds, lambda x: 0 < x <= MAX_POSE_SECONDS,
+                           f"a number of seconds in (0, {MAX_POSE_SECONDS:g}] (MAX_POSE_SECONDS)", _pose_error)
+    rate_hz = check_number("rate_hz", rate_hz, lambda x: x > 0, "a finite number of samples per second > 0", _pose_error)
+    # Checked before anything is allocated (a mistyped rate is terabytes). The product of two
+    # finite numbers may still be inf, which the first test refuses before round() sees it.
+    samples = seconds * rate_hz
+    if not (samples <= MAX_POSE_SAMPLES + 1 and 1 <= round(samples) <= MAX_POSE_SAMPLES):
+        raise PoseError(f"seconds * rate_hz = {seconds!r} * {rate_hz!r} = {samples:.6g} samples: must round to "
+                        f"an integer in [1, {MAX_POSE_SAMPLES}] (MAX_POSE_SAMPLES)")
+    rng = np.random.default_rng(check_seed(seed, error=_pose_error))
+    n = int(round(samples))
     t = np.arange(n) / rate_hz
     if kind == "walk":
         heading = np.cumsum(rng.normal(0, 0.6, n)) / rate_hz * 10
