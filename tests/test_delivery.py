@@ -417,9 +417,11 @@ def test_fetch_matches_simulate_given_the_same_bytes(world, tmp_path, carry):
     assert [r["bytes_share"] for r in recs] == measured
     assert sum(measured) > 0
     # Pacing seen through the whole client: at most the trace's bytes per slot, 5 % + one burst
-    # (the catalogue fetch was not paced: it carried no session name).
-    for got, want in zip(measured, (60_000, 30_000, 50_000)):
-        assert got <= want * 1.05 + 2048
+    # (the catalogue fetch was not paced: it carried no session name). A cut that came late (the
+    # client's draw ran long on a loaded machine) also counts what the server sent meanwhile, at
+    # most the fastest slot's rate for that long: such a slot failed this bound once, not the pacing.
+    for got, want, rec in zip(measured, (60_000, 30_000, 50_000), recs):
+        assert got <= want * 1.05 + 2048 + rec["fetch"]["cut_late_s"] * 60_000, (got, want, rec["fetch"])
     sim = Simulation(stream_bundle(read_stream(world["single"])), world["log"], [60_000, 30_000, 50_000],
                      config=config)
     client = Client(sim, sim.spec("l3gs"))
