@@ -94,7 +94,7 @@ def test_bad_arguments_are_named_errors(kw, match):
 def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["experiments", "--quick", "--paths", "walk", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: paths[0]: 'walk' is not one of")
+    assert len(err) == 1 and err[0].startswith("error: --paths[0]: 'walk' is not one of")
     assert main(["experiments", "--report-only", "--out", str(tmp_path / "none")]) == 2
     assert "error: --out:" in capsys.readouterr().err
     assert main(["experiments", "--quick", "--objects", "13", "--room-parts", "--out", str(tmp_path)]) == 2

@@ -39,7 +39,7 @@ ratio; the aspect ratio must stay, up to rounding).
 Every file is read through :mod:`l3gs_opt.input_files` (regular files only, sizes limited, strict
 JSON). A camera is refused by name before any image is allocated when its size exceeds
 :data:`MAX_IMAGE_SIDE` pixels a side or :data:`MAX_IMAGE_PIXELS` in all, its focal length
-:data:`MAX_FOCAL_PX`, its principal point lies more than :data:`MAX_PRINCIPAL_POINT_OUTSIDE` image
+:data:`MAX_FOCAL_PX`, its field of view :data:`MAX_FOV_DEG`, its principal point lies more than :data:`MAX_PRINCIPAL_POINT_OUTSIDE` image
 sizes outside the image, a background channel leaves [0, 1], or its name is not text.
 """
 
@@ -66,8 +66,8 @@ from l3gs_opt.traces.bandwidth import iter_lines
 __all__ = ["CameraError", "DistortionWarning", "Camera", "load_cameras", "load_camera", "load_any_cameras",
            "save_cameras", "camera_to_dict", "camera_from_dict", "read_colmap", "write_colmap",
            "read_blender", "write_blender", "look_at", "parse_image_size", "max_distortion_px",
-           "check_background", "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX", "MAX_PRINCIPAL_POINT_OUTSIDE",
-           "MAX_DROPPED_DISTORTION_PX"]
+           "check_background", "MAX_IMAGE_SIDE", "MAX_IMAGE_PIXELS", "MAX_FOCAL_PX", "MAX_FOV_DEG",
+           "MAX_PRINCIPAL_POINT_OUTSIDE", "MAX_DROPPED_DISTORTION_PX"]
 
 #: Longest image side (pixels). Renders are allocated per pixel; 16k covers every real sensor.
 MAX_IMAGE_SIDE = 16384
@@ -76,6 +76,12 @@ MAX_IMAGE_PIXELS = 2**25
 #: Largest focal length (pixels): a 0.0001 degree field of view at 16k pixels. Larger ones overflow
 #: the renderer's float32 screen-space covariances (fx^2 Sigma / z^2) and training turns them into NaN.
 MAX_FOCAL_PX = 1e9
+#: Widest field of view (degrees) across either image axis, the smallest focal length's limit
+#: (``fx >= width / (2 tan(MAX_FOV_DEG / 2))``, about ``width / 229``): a pinhole's image plane is
+#: infinitely wide at 180 degrees, and near it ``tan(fov / 2)``, which the renderer's clamps and
+#: screen-space covariances scale by, explodes (``fx = 1e-300`` is a 3e302 tangent). Real lenses,
+#: undistorted, stay well below 150 degrees.
+MAX_FOV_DEG = 179.0
 #: How far outside the image the principal point may lie, in image sizes: ``cx`` in
 #: ``[-W, 2 W]``, ``cy`` in ``[-H, 2 H]``. Real calibrations put it within a few per cent of the
 #: centre, and a crop moves it at most about an image away; the renderer clamps x/z and y/z to
@@ -218,7 +224,8 @@ class Camera:
     ------
     CameraError
         On a non-positive or too large size (:data:`MAX_IMAGE_SIDE`, :data:`MAX_IMAGE_PIXELS`), a
-        non-positive or too large focal length (:data:`MAX_FOCAL_PX`), a principal point more
+        focal length that is not a number (a string or bool), non-positive, too large
+        (:data:`MAX_FOCAL_PX`) or so small that the field of view passes :data:`MAX_FOV_DEG`, a principal point more
         than :data:`MAX_PRINCIPAL_POINT_OUTSIDE` image sizes outside the image, a non-finite
         value, a matrix that is not rigid, a translation beyond the splats'
         :data:`~l3gs_opt.scene.splats.MAX_ABS_MEAN`, a background channel outside [0, 1], or a
@@ -248,14 +255,25 @@ class Camera:
             raise CameraError(f"width: {self.width} x {self.height} = {self.width * self.height:,} pixels, more than "
                               f"{MAX_IMAGE_PIXELS:,} (MAX_IMAGE_PIXELS)")
         for key in ("fx", "fy", "cx", "cy"):
+            raw = getattr(self, key)
+            # float("500") and float(True) would take a string or a flag as a number (as width does not)
+            if isinstance(raw, (bool, np.bool_)) or not isinstance(raw, numbers.Real):
+                raise CameraError(f"{key}: {raw!r} is not a number")
             try:
-                v = float(getattr(self, key))
+                v = float(raw)
             except (TypeError, ValueError, OverflowError):
-                raise CameraError(f"{key}: {getattr(self, key)!r} is not a number") from None
+                raise CameraError(f"{key}: {raw!r} is not a number") from None
             if not math.isfinite(v):
                 raise CameraError(f"{key}: {v} is not finite")
             if key in ("fx", "fy") and not 0 < v <= MAX_FOCAL_PX:
                 raise CameraError(f"{key}: {v} must be > 0 and <= {MAX_FOCAL_PX:g} pixels (MAX_FOCAL_PX)")
+            if key in ("fx", "fy"):
+                side = self.width if key == "fx" else self.height
+                if side / (2.0 * v) > math.tan(math.radians(MAX_FOV_DEG / 2)):
+                    fov = math.degrees(2 * math.atan(side / (2.0 * v)))
+                    raise CameraError(f"{key}: {v:g} pixels gives a {fov:.6g} degree field of view across the {side} "
+                                      f"pixel {'width' if key == 'fx' else 'height'}; it must be at most "
+                                      f"{MAX_FOV_DEG:g} (MAX_FOV_DEG)")
             if key in ("cx", "cy"):
                 side = self.width if key == "cx" else self.height
                 out = MAX_PRINCIPAL_POINT_OUTSIDE * side
@@ -354,6 +372,24 @@ class Camera:
                 f"cx={self.cx:.2f}, cy={self.cy:.2f}, center={np.round(self.center, 3).tolist()})")
 
 
+def _look_at_vector(name: str, value: Any) -> np.ndarray:
+    """An argument of :func:`look_at` as float64 [3] after checking it is 3 finite numbers."""
+    try:
+        v = np.asarray(value)
+    except (TypeError, ValueError):   # ragged rows
+        v = np.asarray(None)
+    # strings ("abc", ["1", "2", "3"]) and flags are refused, not parsed or taken as 0 and 1
+    if v.dtype.kind not in "iuf":
+        raise CameraError(f"look_at: {name}: {value!r} must be 3 numbers")
+    v = v.astype(np.float64)
+    if v.shape != (3,):
+        raise CameraError(f"look_at: {name}: shape {v.shape} must be [3] (x, y, z)")
+    if not np.isfinite(v).all():
+        i = int(np.argmax(~np.isfinite(v)))
+        raise CameraError(f"look_at: {name}[{i}]: {v[i]} is not finite")
+    return v
+
+
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """World-to-camera matrix of a camera at ``eye`` looking at ``target`` (OpenCV axes).
 
@@ -362,20 +398,41 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     eye, target : array_like, shape [3]
         World positions.
     up : array_like, shape [3]
-        World up direction; image rows grow opposite to it.
+        World up direction (any length > 0); image rows grow opposite to it. It must not be
+        parallel to the view direction ``target - eye``, which leaves the image's roll undefined
+        (looking straight down with ``up`` = +z: pass the direction the image top should face).
 
     Returns
     -------
     ndarray, shape [4, 4]
+
+    Raises
+    ------
+    CameraError
+        On a position or direction that is not 3 finite numbers, a position beyond
+        :data:`~l3gs_opt.scene.splats.MAX_ABS_MEAN`, ``eye == target``, a zero ``up`` or one
+        parallel to the view direction.
     """
-    eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
+    eye, target, up = (_look_at_vector(name, v) for name, v in (("eye", eye), ("target", target), ("up", up)))
+    for name, v in (("eye", eye), ("target", target)):
+        # the Camera's own translation limit: beyond it target - eye and |t| leave float range
+        if np.abs(v).max() > MAX_ABS_MEAN:
+            raise CameraError(f"look_at: {name}: {v.tolist()} must be within +-{MAX_ABS_MEAN:g} world units "
+                              "(MAX_ABS_MEAN)")
     z = target - eye
     if np.linalg.norm(z) == 0:
         raise CameraError("look_at: eye and target coincide")
     z = z / np.linalg.norm(z)
+    if not np.any(up):
+        raise CameraError(f"look_at: up: {up.tolist()} must be a non-zero direction")
+    given = up.tolist()
+    # scaled by its largest entry first, so that neither 1e-300 nor 1e300 under/overflows the norm
+    up = up / np.abs(up).max()
+    up = up / np.linalg.norm(up)
     x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    if np.linalg.norm(x) < 1e-9:   # |sin| of the angle between up and the view: the roll is undefined
+        raise CameraError(f"look_at: up: {given} is parallel to the view direction {z.tolist()} "
+                          "(target - eye): the image's roll is undefined; give an up direction across the view")
     x = x / np.linalg.norm(x)
     y = np.cross(z, x)
     r = np.stack([x, y, z])

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from l3gs_opt.scene.splats import SceneError, SplatScene, check_seed
+from l3gs_opt.scene.splats import SceneError, SplatScene, check_seed, check_sh_degree
 
 __all__ = ["make_scene", "ROOM_HALF", "ROOM_HEIGHT", "OBJECT_DENSITY", "SHAPES", "MIN_SPLATS", "MAX_SPLATS", "ROOM_PARTS"]
 
@@ -230,15 +230,18 @@ def make_scene(num_splats: int = 100_000, *, objects: int = 5, sh_degree: int = 
     Raises
     ------
     SceneError
-        On an argument out of range.
+        On an argument out of range or of the wrong type (a bool or float ``sh_degree``, a
+        ``room_parts`` that is not a bool).
     """
     if isinstance(num_splats, bool) or not isinstance(num_splats, (int, np.integer)) or \
             not MIN_SPLATS <= num_splats <= MAX_SPLATS:
         raise SceneError("num_splats", f"{num_splats!r}: must be an integer in [{MIN_SPLATS}, {MAX_SPLATS}]")
     if isinstance(objects, bool) or not isinstance(objects, (int, np.integer)) or not 1 <= objects <= 12:
         raise SceneError("objects", f"{objects!r}: must be an integer in [1, 12]")
-    if sh_degree not in (0, 1, 2, 3):
-        raise SceneError("sh_degree", f"{sh_degree!r}: must be 0, 1, 2 or 3")
+    sh_degree = check_sh_degree(sh_degree)
+    # A flag, not a truthy value: "no" would otherwise split the room.
+    if not isinstance(room_parts, (bool, np.bool_)):
+        raise SceneError("room_parts", f"{room_parts!r}: must be true or false")
     rng = np.random.default_rng(check_seed(seed))
     # --- layout: objects on a ring around the centre, random size, colours, pattern
     specs = []

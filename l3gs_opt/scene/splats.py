@@ -32,11 +32,14 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
+from l3gs_opt.checks import check_count
+from l3gs_opt.checks import check_seed as shared_check_seed
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.input_files import MAX_BINARY_BYTES, check_regular_file
 
 __all__ = ["SceneError", "SplatScene", "read_ply", "write_ply", "read_identity_features", "sh_degree_from_coeffs",
-           "bytes_per_splat", "MIN_QUAT_NORM", "MAX_ABS_MEAN", "MAX_LOG_SCALE", "ply_property", "check_seed"]
+           "bytes_per_splat", "MIN_QUAT_NORM", "MAX_ABS_MEAN", "MAX_LOG_SCALE", "ply_property", "check_seed",
+           "check_sh_degree"]
 
 #: Smallest quaternion norm: the renderer normalises in float32, where the squares of smaller
 #: components underflow (a norm of 1e-25 renders a wrong rotation).
@@ -90,18 +93,26 @@ class SceneError(L3gsError, ValueError):
 
 
 def check_seed(seed, field: str = "seed") -> int:
-    """``seed`` as an int after checking it is a whole number >= 0 (what
-    :func:`numpy.random.default_rng` takes), so that a negative one is refused by name rather
-    than deep inside numpy.
+    """``seed`` as an int after checking it is a whole number >= 0 (:func:`l3gs_opt.checks.check_seed`).
 
     Raises
     ------
     SceneError
         ``seed = -1: must be an integer >= 0`` (the wording of ``instance synth``).
     """
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SceneError(field, f"= {seed!r}: must be an integer >= 0")
-    return int(seed)
+    return shared_check_seed(seed, field=field, error=SceneError)
+
+
+def check_sh_degree(degree, field: str = "sh_degree") -> int:
+    """``degree`` as an int after checking it is an integer 0..3 (not a bool: ``True`` is no degree,
+    and not a float: ``1.0`` would fail later as an array size).
+
+    Raises
+    ------
+    SceneError
+        ``sh_degree: 4: must be an integer in [0, 3]``.
+    """
+    return check_count(field, degree, low=0, high=3, error=SceneError)
 
 
 def sh_degree_from_coeffs(k: int) -> int:
@@ -126,6 +137,18 @@ def bytes_per_splat(sh_degree: int) -> int:
     12 bytes of zero normals).
     """
     return 4 * (3 + 3 * (int(sh_degree) + 1) ** 2 + 1 + 3 + 4)
+
+
+def _float32_array(field: str, value) -> np.ndarray:
+    """``value`` as a contiguous float32 array; ragged rows and anything but real numbers (strings,
+    complex, bools, objects) are refused by name rather than parsed or cast (``"1"`` would become 1.0)."""
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError):   # numpy's "inhomogeneous shape" for ragged rows
+        raise SceneError(field, "must be an array of numbers with rows of equal length") from None
+    if raw.dtype.kind not in "fiu":
+        raise SceneError(field, f"dtype {raw.dtype}: must hold real numbers")
+    return np.ascontiguousarray(raw, dtype=np.float32)
 
 
 def _check_finite(field: str, a: np.ndarray) -> None:
@@ -176,7 +199,8 @@ class SplatScene:
     Raises
     ------
     SceneError
-        On a wrong shape, a non-finite value, a position beyond :data:`MAX_ABS_MEAN` or a
+        On a wrong shape or ragged rows, values that are not real numbers (strings, complex,
+        bools), a non-finite value, a position beyond :data:`MAX_ABS_MEAN` or a
         log-scale above :data:`MAX_LOG_SCALE` (float32 overflow), a zero quaternion or a negative
         id/layer; the message names the field and the index.
     """
@@ -192,24 +216,24 @@ class SplatScene:
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
-        means = np.ascontiguousarray(self.means, dtype=np.float32)
+        means = _float32_array("means", self.means)
         if means.ndim != 2 or means.shape[1] != 3:
             raise SceneError("means", f"shape {means.shape}: must be [N, 3]")
         n = means.shape[0]
         shapes = {"log_scales": (n, 3), "quats": (n, 4), "opacity_logits": (n,)}
         arrays = {"means": means}
         for name, shape in shapes.items():
-            a = np.ascontiguousarray(getattr(self, name), dtype=np.float32)
+            a = _float32_array(name, getattr(self, name))
             if a.shape != shape:
                 raise SceneError(name, f"shape {a.shape}: must be {list(shape)} (N = {n})")
             arrays[name] = a
-        sh = np.ascontiguousarray(self.sh, dtype=np.float32)
+        sh = _float32_array("sh", self.sh)
         if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
             raise SceneError("sh", f"shape {sh.shape}: must be [N, K, 3] (N = {n})")
         sh_degree_from_coeffs(sh.shape[1])
         arrays["sh"] = sh
         if self.normals is not None:
-            nrm = np.ascontiguousarray(self.normals, dtype=np.float32)
+            nrm = _float32_array("normals", self.normals)
             if nrm.shape != (n, 3):
                 raise SceneError("normals", f"shape {nrm.shape}: must be [N, 3] (N = {n})")
             arrays["normals"] = nrm
@@ -229,7 +253,10 @@ class SplatScene:
             v = getattr(self, name)
             if v is None:
                 continue
-            raw = np.asarray(v)
+            try:
+                raw = np.asarray(v)
+            except (TypeError, ValueError):   # ragged rows
+                raise SceneError(name, "must be an array of integers [N]") from None
             if raw.shape != (n,):
                 raise SceneError(name, f"shape {raw.shape}: must be [N] (N = {n})")
             if raw.dtype.kind == "f":
@@ -238,12 +265,15 @@ class SplatScene:
                     raise SceneError(name, f"{raw[i]} is not an integer", (i,))
             elif raw.dtype.kind not in "iub":
                 raise SceneError(name, f"dtype {raw.dtype}: must be integer")
-            a = np.ascontiguousarray(raw, dtype=np.int64)
-            if n and a.min() < 0:
-                raise SceneError(name, f"{a.min()}: must be >= 0", (int(np.argmin(a)),))
-            if n and a.max() > np.iinfo(np.int32).max:
-                raise SceneError(name, f"{a.max()}: must fit in int32", (int(np.argmax(a)),))
-            a = a.astype(np.int32)
+            # Range first, on the values as given: a cast to int64 first would wrap 1e20 or a
+            # uint64 above 2^63 into a negative number and blame the sign.
+            for i, bad, rule in (() if not n else
+                                 ((int(np.argmin(raw)), raw.min() < 0, "must be >= 0"),
+                                  (int(np.argmax(raw)), raw.max() > np.iinfo(np.int32).max, "must fit in int32"))):
+                if bad:
+                    shown = f"{raw[i]:g}" if raw.dtype.kind == "f" else f"{raw[i]}"
+                    raise SceneError(name, f"{shown}: {rule}", (i,))
+            a = np.ascontiguousarray(raw, dtype=np.int32)
             if name == "layers" and not a.any():
                 set_(name, None)
                 continue
@@ -275,17 +305,48 @@ class SplatScene:
         return 1 if self.layers is None else int(self.layers.max()) + 1
 
     def subset(self, index) -> "SplatScene":
-        """Return the scene restricted to ``index`` (boolean mask [N] or integer indices)."""
+        """Return the scene restricted to ``index``: a boolean mask [N], integer row indices in
+        ``[0, N)`` (in the order given, repeats allowed) or a slice.
+
+        Raises
+        ------
+        SceneError
+            On a mask of the wrong length, a row outside ``[0, N)`` or an index of another type.
+        """
+        if not isinstance(index, slice):
+            index = self._rows(index)
         pick = lambda a: None if a is None else np.asarray(a)[index]  # noqa: E731
         return SplatScene(means=self.means[index], log_scales=self.log_scales[index],
                           quats=self.quats[index], opacity_logits=self.opacity_logits[index],
                           sh=self.sh[index], object_ids=pick(self.object_ids),
                           layers=pick(self.layers), normals=pick(self.normals))
 
+    def _rows(self, index) -> np.ndarray:
+        """``index`` of :meth:`subset` as a boolean mask [N] or int64 rows, each in ``[0, N)``: numpy
+        would wrap a negative row to the end and fail on a row past it with a bare IndexError."""
+        n = self.num_splats
+        try:
+            a = np.asarray(index)
+        except (TypeError, ValueError):
+            a = np.asarray(None)
+        if a.dtype.kind == "b":
+            if a.shape != (n,):
+                raise SceneError("index", f"boolean mask of shape {a.shape}: must be [N] (N = {n})")
+            return a
+        if a.ndim != 1 or (a.dtype.kind not in "iu" and a.size):
+            shown = repr(index) if a.size <= 8 else f"{a.dtype} array of shape {a.shape}"
+            raise SceneError("index", f"{shown}: must be a boolean mask [N], integer rows [k] or a slice")
+        a = a.astype(np.int64)
+        bad = (a < 0) | (a >= n)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SceneError("index", f"{a[i]} is not a row of the scene (rows 0..{n - 1})" if n else
+                             f"{a[i]} is not a row of the scene (it has none)", (i,))
+        return a
+
     def with_sh_degree(self, degree: int) -> "SplatScene":
         """Return the scene truncated (or zero-padded) to SH degree ``degree`` (0..3)."""
-        if degree not in (0, 1, 2, 3):
-            raise SceneError("sh_degree", f"{degree}: must be 0, 1, 2 or 3")
+        degree = check_sh_degree(degree)
         k = (degree + 1) ** 2
         sh = np.zeros((self.num_splats, k, 3), np.float32)
         m = min(k, self.sh.shape[1])
@@ -375,7 +436,8 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
     ------
     SceneError
         If the file is missing, not a PLY, truncated or corrupt, lacks a required property,
-        has an unknown one (unless ``ignore_unknown``), a gap in ``f_rest_*``, a coefficient
+        has an unknown one (unless ``ignore_unknown``), only some of ``nx ny nz``, text after the
+        rows an ASCII header declares, a gap in ``f_rest_*``, a coefficient
         count that is not SH degree 0-3, a non-finite value, or a value whose float32 arithmetic
         overflows (``x y z`` beyond :data:`MAX_ABS_MEAN`, ``scale_*`` above :data:`MAX_LOG_SCALE`).
     """
@@ -406,16 +468,22 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         raise SceneError(unknown[0], f"{path}: unknown vertex property (pass ignore_unknown=True / "
                                      f"--ignore-unknown-properties to skip it)")
     has_normals = all(p in names for p in _NORMAL_PROPS)
+    if not has_normals and any(p in names for p in _NORMAL_PROPS):   # half a normal would be dropped unsaid
+        lacking = [p for p in _NORMAL_PROPS if p not in names]
+        raise SceneError(lacking[0], f"{path}: missing beside {', '.join(p for p in _NORMAL_PROPS if p in names)} "
+                                     f"(normals need all of nx, ny, nz)")
     groups = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
               "quats": ("rot_0", "rot_1", "rot_2", "rot_3"), "opacity": ("opacity",),
               # [N, K, 3] order: f_rest_* is channel-major in the file
               "sh": [f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}" for j in range(k) for c in range(3)]}
     if has_normals:
         groups["normals"] = _NORMAL_PROPS
+    # Ids as one column [N] in the file's own type, float or int (some tools write every property
+    # as float): SplatScene then judges the values (``layer[0]: 1.5 is not an integer``).
     if id_props:
-        groups["object_ids"] = (id_props[0],)
+        groups["object_ids"] = id_props[0]
     if "layer" in names:
-        groups["layers"] = ("layer",)
+        groups["layers"] = "layer"
     got = dict(zip(groups, table.gather(groups.values())))
     means, sh = got["means"], got["sh"].reshape(n, k, 3)
     kwargs = {key: got[key] for key in ("normals", "object_ids", "layers") if key in got}
@@ -426,6 +494,8 @@ def read_ply(path, *, ignore_unknown: bool = False) -> SplatScene:
         if exc.field not in _SCENE_FIELDS or not exc.index:
             raise
         field, index = ply_property(exc.field, exc.index, k)
+        if exc.field == "object_ids":   # the file's own name for the ids (obj_id, segment_id, ...)
+            field = id_props[0]
         message = str(exc).split(": ", 1)[1]
         raise SceneError(field, f"{path}: {message}", index) from None
 
@@ -520,14 +590,38 @@ def _check_ply_header(path: Path) -> Optional[_PlyHeader]:
             elements[-1][3].append((tok[-1], None if tok[1] == "list" else tok[1]))
         elif tok and tok[0] not in ("ply", "comment", "obj_info"):
             parsed = False
-    for name, count, least, _ in elements:
+    for name, count, least, props in elements:
         if count * max(least, 1) > body:
+            if fmt == "ascii":   # a text body is rows of values, not bytes
+                raise SceneError("file", f"{path}: header claims {count:,} '{name}' elements (rows of {len(props)} "
+                                         f"values), more than the {body:,} characters of text after the header can "
+                                         f"hold (each value takes at least 2: a digit and a separator)")
             raise SceneError("file", f"{path}: header claims {count:,} '{name}' elements, more than the "
                                      f"{body:,} bytes after the header can hold")
         body -= count * max(least, 1)
     if not parsed:
         return None
     return _PlyHeader(fmt, [(e[0], e[1], e[3]) for e in elements], start)
+
+
+def _check_no_extra_rows(path: Path, rows: int) -> None:
+    """Refuse text after the ``rows`` rows an ASCII header declares: plyfile reads that many lines and
+    ignores the rest, so an ``element vertex`` count that is too small would drop splats unsaid.
+    Lines are read as plyfile reads them (ASCII text, universal newlines), one at a time."""
+    import io
+
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_PLY_HEADER)
+        end = head.find(b"end_header")
+        newline = head.find(b"\n", end)
+        if end < 0 or newline < 0:
+            return
+        fh.seek(newline + 1)
+        text = io.TextIOWrapper(fh, "ascii", errors="replace")
+        for k, line in enumerate(text):
+            if k >= rows and line.strip():
+                raise SceneError("file", f"{path}: text after the {rows:,} rows the header declares (line {k + 1} "
+                                         f"of the body): is the header's element count too small?")
 
 
 #: Rows :meth:`_VertexTable.gather` reads at a time (16 MiB at the reference layout's 248 bytes).
@@ -589,14 +683,19 @@ class _VertexTable:
             n = len(data)
         except Exception as exc:
             raise SceneError("file", f"{path}: corrupt vertex data ({exc})") from None
+        if ply.text:
+            _check_no_extra_rows(path, sum(e.count for e in ply.elements))
         return cls(names, n, lambda p: data[p])
 
     def gather(self, groups) -> list:
         """Each group of property names as one array: float32 ``[N, k]`` for a group of floats,
-        the file's integer type ``[N]`` for a group of one integer property."""
-        groups = [list(g) for g in groups]
+        the file's integer type ``[N]`` for a group of one integer property, and the file's type
+        ``[N]``, float or integer, for a group given as one name (a ``str``)."""
+        single = [isinstance(g, str) for g in groups]
+        groups = [[g] if one else list(g) for g, one in zip(groups, single)]
         if self._words is None or not self.n:
-            return [self.block(g) if self._kind(g[0]) == "f" else self.column(g[0]) for g in groups]
+            return [self.column(g[0], limit=not one) if one or self._kind(g[0]) != "f" else self.block(g)
+                    for g, one in zip(groups, single)]
         path, body, order, where = self._words
         width = len(where)
         outs = [np.empty((self.n, len(g)), order + "u4") for g in groups]
@@ -612,22 +711,23 @@ class _VertexTable:
                 for out, ix in zip(outs, index):
                     out[start:start + m] = rows[:, ix]
         result = []
-        for g, out in zip(groups, outs):
+        for g, out, one in zip(groups, outs, single):
             if not out.dtype.isnative:
                 out = out.byteswap().view(out.dtype.newbyteorder("="))
             kind = where[g[0]][1]
-            result.append(out.view(np.float32) if kind[0] == "f" else out.view(kind)[:, 0])
+            result.append(out.view(kind)[:, 0] if one or kind[0] != "f" else out.view(np.float32))
         return result
 
     def _kind(self, name: str) -> str:
         return np.asarray(self._get(name)[:0]).dtype.kind
 
-    def column(self, name: str) -> np.ndarray:
-        """One property as an array [N] in its file type; a float that does not fit float32 is refused."""
+    def column(self, name: str, *, limit: bool = True) -> np.ndarray:
+        """One property as an array [N] in its file type; with ``limit``, a float that does not fit
+        float32 is refused (ids, read without it, are judged by SplatScene's int32 range instead)."""
         a = np.asarray(self._get(name))
         if a.dtype.kind not in "fiu":
             raise SceneError(name, f"dtype {a.dtype} is not numeric")
-        if a.dtype.kind == "f" and a.dtype.itemsize > 4:
+        if limit and a.dtype.kind == "f" and a.dtype.itemsize > 4:
             # Refused before the cast to float32 makes it inf (non-finite values are named by SplatScene).
             big = np.abs(a) > _FLOAT32_MAX
             if big.any():

@@ -8,8 +8,12 @@ from typing import Callable
 
 import numpy as np
 
-from l3gs_opt.errors import L3gsError
+from l3gs_opt.checks import shown
+from l3gs_opt.errors import L3gsError, SolveError
+from l3gs_opt.scene.camera_paths import intrinsics_from_fov
+from l3gs_opt.scene.cameras import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, CameraError
 from l3gs_opt.simulator.link import BUDGETS, CARRIES
+from l3gs_opt.traces.bandwidth import MAX_TRACE_SAMPLES
 
 __all__ = ["SimulationError", "SimConfig", "SlotInputs", "TIMING_KEYS", "SH_UPGRADE_UTILITIES"]
 
@@ -22,6 +26,10 @@ _BANDWIDTH = ("harmonic", "last", "oracle")
 _UTILITY_MODES = ("exact", "table")
 #: How the splats of a unit are ordered on the wire (``SimConfig.splat_order``).
 SPLAT_ORDERS = ("method", "stored")
+#: Longest viewport history window ``hw_s`` (seconds): 11.6 days, longer than any pose log the
+#: readers take (``MAX_POSE_FILE_BYTES``: ~250,000 poses). A longer window holds the same samples
+#: as the whole log, so a larger value is a typo (``hw_s=1e300``), not a setting.
+MAX_HW_S = 1e6
 
 
 class SimulationError(L3gsError, ValueError):
@@ -31,6 +39,15 @@ class SimulationError(L3gsError, ValueError):
         self.field = field
         self.index = index
         super().__init__(f"{field}{'' if index is None else f'[{index}]'}: {message}")
+
+
+def _float(v) -> float:
+    """``v`` as a float, ``inf`` for an int too large for one (``10**400``: float() would raise
+    OverflowError), so that the range checks refuse it by name."""
+    try:
+        return float(v)
+    except OverflowError:
+        return math.inf if v > 0 else -math.inf
 
 
 @dataclass(frozen=True)
@@ -44,15 +61,18 @@ class SimConfig:
     budget : {"per_slot", "cumulative"}
         Idle bytes lost, or banked for the next slot.
     width, height : int
-        Rendered (and utility) image size in pixels.
+        Rendered (and utility) image size in pixels: 11..:data:`~l3gs_opt.scene.cameras.MAX_IMAGE_SIDE`
+        a side, at most :data:`~l3gs_opt.scene.cameras.MAX_IMAGE_PIXELS` in all (a Camera's limits).
     fov_deg : float
-        Horizontal field of view, degrees.
+        Horizontal field of view, degrees, in [1, 170] (what
+        :func:`~l3gs_opt.scene.camera_paths.intrinsics_from_fov` builds the cameras from).
     samples_per_slot : int
         Predicted viewpoints per slot whose utilities are averaged.
     viewport : {"lr", "last", "oracle"}
-        Viewport predictor; ``hw_s``: its history window, seconds.
+        Viewport predictor; ``hw_s``: its history window, seconds (at most :data:`MAX_HW_S`).
     bandwidth_predictor : {"harmonic", "last", "oracle"}
-        ``bandwidth_window``: slots in the harmonic mean; ``robust``: RobustMPC's discount.
+        ``bandwidth_window``: slots in the harmonic mean (at most
+        :data:`~l3gs_opt.traces.bandwidth.MAX_TRACE_SAMPLES`); ``robust`` (a bool): RobustMPC's discount.
     utility : str
         The splat utility that values the units (a name of
         :func:`l3gs_opt.pipeline.utilities.utility_names`; default ``eq1``, the paper's Eq. 1).
@@ -72,11 +92,13 @@ class SimConfig:
     time_limit_s : float or None
         Seconds per scheduling call (passed to the solver).
     horizon : int or None
-        Multi-slot methods plan at most this many slots ahead (None: the rest of the run).
+        Multi-slot methods plan at most this many slots ahead (None: the rest of the run; at most
+        :data:`~l3gs_opt.traces.bandwidth.MAX_TRACE_SAMPLES`).
     fill : bool
-        Keep the link busy after the slot's picks (see the module docstring).
+        Keep the link busy after the slot's picks (see the module docstring); a bool, not a truthy value.
     backend : str
-        ILP backend of ``ilp``, ``mpc:H``, ``rolling:ilp``.
+        ILP backend of ``ilp``, ``mpc:H``, ``rolling:ilp``: a name of :class:`l3gs_opt.models.Backend`
+        (checked here; whether it is installed, when a solve runs).
     substeps : int
         Re-plan points per slot (beyond the paper): the slot's bytes are split into this many
         equal parts and before each part the scheduler plans again with the bytes the client
@@ -138,25 +160,59 @@ class SimConfig:
         def positive(name: str, integer: bool = False) -> None:
             v = getattr(self, name)
             ok = isinstance(v, (int, np.integer)) if integer else isinstance(v, (int, float, np.integer, np.floating))
-            if isinstance(v, bool) or not ok or not math.isfinite(v) or v <= 0:
+            if isinstance(v, bool) or not ok or not math.isfinite(_float(v)) or v <= 0:
                 kind = "a positive integer" if integer else "a positive number"
-                raise SimulationError(name, f"{v!r}: must be {kind}")
+                raise SimulationError(name, f"{shown(v)}: must be {kind}")
 
         for name in ("slot_s", "fov_deg", "hw_s", "bandwidth_bias"):
             positive(name)
         for name in ("width", "height", "samples_per_slot", "bandwidth_window", "substeps"):
             positive(name, integer=True)
         d = self.decision_s
-        if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) or not math.isfinite(d) \
-                or not 0 <= d <= self.slot_s / self.substeps:
-            raise SimulationError("decision_s", f"{d!r}: must be seconds in [0, slot_s / substeps]")
+        if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(_float(d)) or not 0 <= d <= self.slot_s / self.substeps:
+            raise SimulationError("decision_s", f"{shown(d)}: must be seconds in [0, slot_s / substeps]")
         # Each is work per slot: a huge value is a typo that would run for days, not a setting.
         from l3gs_opt.pipeline.counts import MAX_SAMPLES_PER_SLOT, MAX_SUBSTEPS, check_count
 
         check_count("samples_per_slot", self.samples_per_slot, high=MAX_SAMPLES_PER_SLOT, error=SimulationError)
         check_count("substeps", self.substeps, high=MAX_SUBSTEPS, error=SimulationError)
+        # Every slot renders images of this size: the Camera's limits (and words), checked before any slot runs.
+        for name in ("width", "height"):
+            if getattr(self, name) > MAX_IMAGE_SIDE:
+                raise SimulationError(name, f"{getattr(self, name)} must be a positive integer <= {MAX_IMAGE_SIDE} "
+                                            f"(MAX_IMAGE_SIDE)")
+        if self.width * self.height > MAX_IMAGE_PIXELS:
+            raise SimulationError("width", f"{self.width} x {self.height} = {self.width * self.height:,} pixels, more "
+                                           f"than {MAX_IMAGE_PIXELS:,} (MAX_IMAGE_PIXELS)")
         if self.width < 11 or self.height < 11:
             raise SimulationError("width", f"{self.width}x{self.height}: SSIM needs at least 11x11 pixels")
+        # The cameras the simulation builds from these (fov_deg in [1, 170]): refused here rather
+        # than when the run starts; a field of view of 180 or more has no pinhole focal length.
+        try:
+            intrinsics_from_fov(int(self.width), int(self.height), self.fov_deg)
+        except CameraError as exc:
+            message = str(exc).split(": ", 1)[-1]
+            raise SimulationError("fov_deg", message) from None
+        # Slots are trace samples: a window or horizon longer than the longest trace means "all of it".
+        in_trace = lambda f, m: SimulationError(f, f"{m} slots (MAX_TRACE_SAMPLES)")  # noqa: E731
+        check_count("bandwidth_window", self.bandwidth_window, high=MAX_TRACE_SAMPLES, error=in_trace)
+        if self.hw_s > MAX_HW_S:
+            raise SimulationError("hw_s", f"{shown(self.hw_s)}: must be at most {MAX_HW_S:g} seconds (MAX_HW_S)")
+        # Flags are bools, as Options.same_slot_layers: "no" is truthy and would switch them on.
+        for name in ("robust", "fill"):
+            v = getattr(self, name)
+            if not isinstance(v, (bool, np.bool_)):
+                raise SimulationError(name, f"{v!r}: must be true or false")
+            object.__setattr__(self, name, bool(v))
+        # The backend's name only (models is a lower layer): whether it is installed is the solve's question.
+        from l3gs_opt.models import Backend
+
+        try:
+            Backend.parse(self.backend)
+        except (SolveError, TypeError):
+            raise SimulationError("backend", f"{self.backend!r} is not one of "
+                                             f"{', '.join(b.value for b in Backend)}") from None
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),
                               ("utility_mode", _UTILITY_MODES), ("splat_order", SPLAT_ORDERS),
                               ("carry", CARRIES)):
@@ -179,17 +235,18 @@ class SimConfig:
             positive("time_limit_s")
         if self.horizon is not None:
             positive("horizon", integer=True)
-        if not (isinstance(self.pose_start_s, (int, float)) and math.isfinite(self.pose_start_s)
-                and self.pose_start_s >= 0):
-            raise SimulationError("pose_start_s", f"{self.pose_start_s!r}: must be a number >= 0 (seconds)")
+            check_count("horizon", self.horizon, high=MAX_TRACE_SAMPLES, error=in_trace)
+        p = self.pose_start_s
+        if isinstance(p, bool) or not isinstance(p, (int, float)) or not math.isfinite(_float(p)) or p < 0:
+            raise SimulationError("pose_start_s", f"{shown(p)}: must be a number >= 0 (seconds)")
         f = self.sh_upgrade_utility
         if isinstance(f, str):
             if f not in SH_UPGRADE_UTILITIES:
                 raise SimulationError("sh_upgrade_utility", f"{f!r} is not one of {', '.join(SH_UPGRADE_UTILITIES)} "
                                                             "or a number in [0, 1]")
         elif isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
-                or not (0.0 <= float(f) <= 1.0):
-            raise SimulationError("sh_upgrade_utility", f"{f!r}: must be 'residual', 'bands' or a number in [0, 1]")
+                or not (0.0 <= _float(f) <= 1.0):
+            raise SimulationError("sh_upgrade_utility", f"{shown(f)}: must be 'residual', 'bands' or a number in [0, 1]")
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ Example
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Hashable, Sequence
+from typing import Hashable, Mapping, Sequence
 
 import numpy as np
 
@@ -117,6 +117,51 @@ def _byte_count(value, name: str, index: int | None = None, *, positive: bool = 
     return v
 
 
+def _items(values, name: str, what: str) -> list:
+    """``values`` as a list if it is a sequence (list, tuple, 1-D array, any iterable); a number, a
+    string or a mapping is refused by name (iterating a dict would take its keys as the items)."""
+    if isinstance(values, (str, bytes, Mapping)) or (isinstance(values, np.ndarray) and values.ndim != 1):
+        items = None
+    else:
+        try:
+            items = list(values)
+        except TypeError:   # not iterable: 5, None
+            items = None
+    if items is None:
+        shown = repr(values)
+        shown = shown if len(shown) <= 60 else f"{type(values).__name__} of shape {np.shape(values)}"
+        raise LinkError(f"{name} = {shown}: must be a sequence of {what}")
+    return items
+
+
+def _byte_counts(values, name: str) -> list[int]:
+    """``values`` (a sequence or 1-D array) as a list of byte counts, each checked by :func:`_byte_count`."""
+    return [_byte_count(v, name, i) for i, v in enumerate(_items(values, name, "integer byte counts"))]
+
+
+def _requests(requests, busy=frozenset()) -> list[tuple[Hashable, int]]:
+    """``requests`` as ``(key, size)`` pairs after the checks :meth:`Link.step` and :meth:`Link.demand`
+    share: pairs, hashable keys (a dict of transfers holds them), sizes positive whole bytes, and no
+    key twice or among ``busy`` (the keys in flight), naming the request's index."""
+    seen = set(busy)
+    out = []
+    for i, req in enumerate(_items(requests, "requests", "(key, bytes) pairs")):
+        try:
+            key, size = req
+        except (TypeError, ValueError):
+            raise LinkError(f"requests[{i}] = {req!r}: must be a (key, bytes) pair") from None
+        try:
+            hash(key)
+        except TypeError:
+            raise LinkError(f"requests[{i}]: key {key!r} must be hashable (a str, int or tuple)") from None
+        size = _byte_count(size, "requests", i, positive=True)
+        if key in seen:
+            raise LinkError(f"requests[{i}]: key {key!r} is requested twice or already in flight")
+        seen.add(key)
+        out.append((key, size))
+    return out
+
+
 @dataclass
 class Link:
     """A sequential link over ``len(bandwidth)`` slots (see the module docstring).
@@ -134,7 +179,8 @@ class Link:
     Raises
     ------
     LinkError
-        A negative or fractional byte count (naming the index), an unknown budget or carry rule.
+        A ``bandwidth`` that is not a sequence, a negative or fractional byte count (naming the
+        index), an unknown budget or carry rule.
     """
 
     bandwidth: Sequence[int]
@@ -149,7 +195,7 @@ class Link:
             raise LinkError(f"budget = {self.budget!r}: must be one of {', '.join(BUDGETS)}")
         if self.carry not in CARRIES:
             raise LinkError(f"carry = {self.carry!r}: must be one of {', '.join(CARRIES)}")
-        self.bandwidth = [_byte_count(b, "bandwidth", i) for i, b in enumerate(self.bandwidth)]
+        self.bandwidth = _byte_counts(self.bandwidth, "bandwidth")
 
     @property
     def slots(self) -> int:
@@ -162,8 +208,15 @@ class Link:
 
     def demand(self, requests: Sequence[tuple[Hashable, int]] = ()) -> int:
         """Bytes the link would move next slot with ``requests`` if nothing limited it, beyond
-        its bank: what it asks of a shared bottleneck."""
-        return max(0, self.in_flight_bytes + sum(int(size) for _, size in requests) - self.bank)
+        its bank: what it asks of a shared bottleneck.
+
+        Raises
+        ------
+        LinkError
+            On a request :meth:`step` would refuse (naming its index).
+        """
+        sizes = [size for _, size in _requests(requests, {tr.key for tr in self.in_flight})]
+        return max(0, self.in_flight_bytes + sum(sizes) - self.bank)
 
     def step(self, requests: Sequence[tuple[Hashable, int]] = (), *, bandwidth: int | None = None,
              head_bytes: int = 0) -> SlotDelivery:
@@ -178,25 +231,16 @@ class Link:
         Raises
         ------
         LinkError
-            Past the last slot; a size that is not a positive integer; a key requested twice or
-            already in flight (naming the request's index).
+            Past the last slot; ``requests`` that is not a sequence of pairs; a size that is not a
+            positive integer; a key that is not hashable, requested twice or already in flight
+            (naming the request's index).
         """
         if self.slot >= self.slots:
             raise LinkError(f"slot {self.slot}: the trace has only {self.slots} slots")
         if bandwidth is not None:
             self.bandwidth[self.slot] = _byte_count(bandwidth, "bandwidth", self.slot)
-        busy = {tr.key for tr in self.in_flight}
         queue = list(self.in_flight)
-        for i, req in enumerate(requests):
-            try:
-                key, size = req
-            except (TypeError, ValueError):
-                raise LinkError(f"requests[{i}] = {req!r}: must be a (key, bytes) pair") from None
-            size = _byte_count(size, "requests", i, positive=True)
-            if key in busy:
-                raise LinkError(f"requests[{i}]: key {key!r} is requested twice or already in flight")
-            busy.add(key)
-            queue.append(Transfer(key, size))
+        queue += [Transfer(key, size) for key, size in _requests(requests, {tr.key for tr in self.in_flight})]
         capacity = self.bandwidth[self.slot] + self.bank
         head = min(_byte_count(head_bytes, "head_bytes"), capacity)
         lost = max(0, head - sum(tr.remaining for tr in self.in_flight))
@@ -229,10 +273,21 @@ class Link:
 
 
 def split_bytes(total: int, parts: int) -> list[int]:
-    """``total`` bytes in ``parts`` near-equal integer parts, the larger ones first (they sum to ``total``)."""
+    """``total`` bytes in ``parts`` near-equal integer parts, the larger ones first (they sum to ``total``).
+
+    ``parts`` is 1..:data:`~l3gs_opt.pipeline.counts.MAX_SUBSTEPS`, the parts of a slot
+    (``SimConfig.substeps``): the list is built in Python, so ``parts=10**10`` would hang.
+
+    Raises
+    ------
+    LinkError
+        On a byte count :func:`max_min_shares` would refuse, or ``parts`` out of range.
+    """
+    from l3gs_opt.pipeline.counts import MAX_SUBSTEPS
+
     total = _byte_count(total, "total")
-    if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
-        raise LinkError(f"parts = {parts!r}: must be a positive integer")
+    if isinstance(parts, (bool, np.bool_)) or not isinstance(parts, (int, np.integer)) or not 1 <= parts <= MAX_SUBSTEPS:
+        raise LinkError(f"parts = {parts!r}: must be an integer in [1, {MAX_SUBSTEPS}] (MAX_SUBSTEPS)")
     q, r = divmod(total, int(parts))
     return [q + (1 if i < r else 0) for i in range(int(parts))]
 
@@ -250,7 +305,8 @@ def max_min_shares(total: int, demands: Sequence[int]) -> list[int]:
     Raises
     ------
     LinkError
-        A negative or fractional byte count, naming the index.
+        ``demands`` that is not a sequence (a number, a string, a mapping); a negative or
+        fractional byte count, naming the index.
 
     Example
     -------
@@ -260,7 +316,7 @@ def max_min_shares(total: int, demands: Sequence[int]) -> list[int]:
     [5, 5]
     """
     total = _byte_count(total, "total")
-    d = [_byte_count(v, "demands", i) for i, v in enumerate(demands)]
+    d = _byte_counts(demands, "demands")
     K = len(d)
     if K == 0:
         raise LinkError("demands: at least one client is needed")
