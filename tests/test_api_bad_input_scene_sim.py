@@ -213,8 +213,8 @@ def test_link_demand_counts_valid_requests():
 
 
 # ---------------------------------------------------------------------- C23: huge ints in SimConfig
-@pytest.mark.parametrize("field", ["slot_s", "fov_deg", "hw_s", "bandwidth_bias", "decision_s", "time_limit_s",
-                                   "pose_start_s", "sh_upgrade_utility"])
+@pytest.mark.parametrize("field", ["slot_s", "fov_deg", "hw_s", "bandwidth_bias", "decision_s",
+                                   "pose_start_s", "sh_upgrade_utility"])   # (time_limit_s: no limit, as solve())
 def test_simconfig_huge_int_is_refused_by_name(field):
     _refused(SimulationError, rf"^{field}: 1{'0' * 56}\.\.\.: must be ", SimConfig,   # shown() cuts it to 60
              **{field: 10**400})

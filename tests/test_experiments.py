@@ -104,7 +104,7 @@ def test_cli_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["experiments", "--quick", "--sh-degree", "5", "--out", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: --sh-degree: 5: must be 0, 1, 2 or 3")
     assert main(["experiments", "--quick", "--utilities", "eq1,nope", "--out", str(tmp_path)]) == 2
-    assert capsys.readouterr().err.startswith("error: utilities[1]: utility 'nope'")
+    assert capsys.readouterr().err.startswith("error: --utilities[1]: utility 'nope'")
 
 
 # ---------------------------------------------------------------------------------------- runs

@@ -22,12 +22,14 @@ from __future__ import annotations
 import copy
 import json
 import math
+import reprlib
 import types
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from l3gs_opt.checks import is_real, shown
 from l3gs_opt.errors import InstanceError
 from l3gs_opt.input_files import MAX_JSON_DEPTH, key_name, parse_json
 
@@ -109,33 +111,49 @@ def _show(value: np.generic) -> str:
     return repr(value.item())
 
 
+#: A container's repr for messages: a few levels and entries, never the whole (a list nested
+#: 100,000 deep would exhaust ``repr``'s recursion, a list of 10^6 numbers fill the message).
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel, _SHORT_REPR.maxlist, _SHORT_REPR.maxtuple, _SHORT_REPR.maxdict = 3, 4, 4, 2
+
+
+def brief(value: Any) -> str:
+    """Any value, as given, for a message: at most 24 characters and never an exception (see
+    :data:`_SHORT_REPR` for containers; :func:`~l3gs_opt.checks.shown` for an int of 5,000 digits)."""
+    if isinstance(value, (list, tuple, dict, set, frozenset)):
+        try:
+            text = _SHORT_REPR.repr(value)
+        except ValueError:   # an int of more than 4300 digits inside
+            text = f"<{type(value).__name__}>"
+    else:
+        text = shown(value)
+    return text if len(text) <= 24 else text[:21] + "..."
+
+
 def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count: int,
                      axis: str) -> tuple[float, "Options", tuple[str, ...] | None, types.MappingProxyType]:
     """Check the fields both instance forms share: ``slot_s`` (seconds, > 0), ``options``,
     ``names`` (``count`` strings, one per ``axis`` entry) and ``meta`` (a JSON object, copied by a
     JSON round trip and frozen). Raises :class:`InstanceError` naming the field and index."""
-    number = not isinstance(slot_s, bool) and isinstance(slot_s, (int, float, np.integer, np.floating))
     try:
-        seconds = float(slot_s) if number else math.nan
+        seconds = float(slot_s) if is_real(slot_s) else math.nan
     except OverflowError:   # an integer beyond float's range
         seconds = math.inf
     if not math.isfinite(seconds) or seconds <= 0:
-        text = repr(slot_s)
-        raise InstanceError("slot_s", f"{text if len(text) <= 24 else text[:21] + '...'}: must be a positive "
-                                      "number of seconds")
+        raise InstanceError("slot_s", f"{brief(slot_s)}: must be a positive number of seconds")
     options = options if options is not None else Options()
     if not isinstance(options, Options):
         options = Options.from_dict(options)
+    # Names are labels (reports, the names of converted items), never looked up: they need not be unique.
     if names is not None:
-        if isinstance(names, str) or not isinstance(names, Sequence):
-            raise InstanceError("names", f"must be a list of {axis} strings")
+        # A str or bytes is a Sequence too: b"ab" would be read as the names 97 and 98.
+        if isinstance(names, (str, bytes, bytearray)) or not isinstance(names, Sequence):
+            raise InstanceError("names", f"must be a list of {axis} strings, got {type(names).__name__}")
         if len(names) != count:
             raise InstanceError("names", f"has {len(names)} entries, expected {axis} = {count}")
         for k, name in enumerate(names):
             if not isinstance(name, str):
-                text = repr(name)
-                raise InstanceError("names", f"{text if len(text) <= 24 else text[:21] + '...'}: must be a string",
-                                    (k,))
+                raise InstanceError("names", f"{brief(name)}: must be a string", (k,))
         names = tuple(names)
     meta = meta if meta is not None else {}
     if not isinstance(meta, Mapping):
@@ -223,9 +241,11 @@ def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarr
     arr = as_array(value, name)
     if arr.ndim != ndim:
         raise InstanceError(name, f"must be a {ndim}-dimensional array, got {arr.ndim} dimensions")
+    what = "a positive integer (bytes)" if positive else "a non-negative integer (bytes)"
+    if arr.dtype.kind == "O":
+        _object_bytes(arr, name, what)
     if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
         raise InstanceError(name, f"must hold integers (bytes), got dtype {arr.dtype}")
-    what = "a positive integer (bytes)" if positive else "a non-negative integer (bytes)"
     if arr.dtype.kind == "f":
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -246,6 +266,19 @@ def _byte_array(value: Any, name: str, ndim: int, *, positive: bool) -> np.ndarr
     out = arr.astype(np.int64)
     out.setflags(write=False)
     return out
+
+
+def _object_bytes(arr: np.ndarray, name: str, what: str) -> None:
+    """Name the first entry of an object array (numpy's answer to an int beyond int64, or to a
+    mix of numbers and other things) that is no byte count: out of range, or not a number."""
+    for idx in np.ndindex(arr.shape):
+        v = arr[idx]
+        if not is_real(v):
+            raise InstanceError(name, f"= {brief(v)}: must be {what}", idx)
+        if isinstance(v, int) and v > MAX_BYTES:
+            raise InstanceError(name, f"= {brief(v)}: out of range: must be at most 2**53 = {MAX_BYTES} bytes", idx)
+        if isinstance(v, int) and v < 0:
+            raise InstanceError(name, f"= {brief(v)}: out of range: must be {what}", idx)
 
 
 def _utility_array(value: Any, representation: str) -> np.ndarray:
@@ -308,7 +341,8 @@ class Instance:
         Slot length in seconds (default 1.0).
     options : Options, optional
     names : sequence of str, optional
-        Object names, J of them.
+        Object names, J of them: labels for people (reports, item names), not keys, so two
+        objects may share one.
     meta : mapping, optional
         Free-form provenance (JSON-serialisable), e.g. trace, window and scale factor.
 

@@ -14,9 +14,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from l3gs_opt.checks import is_real
 from l3gs_opt.errors import InstanceError, os_error_reason
 from l3gs_opt.input_files import key_name, load_npz, npz_text, parse_json, read_json
 from l3gs_opt.problem.instance import SCHEMA, Instance, Options
+from l3gs_opt.problem.instance import brief as _brief
 
 __all__ = ["MAX_JSON_BYTES", "MAX_NPZ_BYTES", "instance_from_dict", "instance_from_raw", "load_instance",
            "save_instance", "nested_array", "npz_fields", "read_raw_problem", "read_problem_file",
@@ -39,11 +41,6 @@ _DIMS = {"bandwidth": ("slots",), "cost": ("objects", "layers"), "utility": ("sl
          "held": ("objects", "layers")}
 
 
-def _brief(value: object) -> str:
-    text = repr(value)
-    return text if len(text) <= 24 else text[:21] + "..."
-
-
 def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
                  error: type[InstanceError] = InstanceError, pairs: bool = False) -> np.ndarray:
     """Nested JSON lists -> array, checking every entry's type and every list's length.
@@ -57,6 +54,10 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
     the list holds. A fractional or non-finite float makes the array float64, so that the caller
     names it with its own rule (fractional bytes, 0/1, an item index). Otherwise the array is
     float64 and an integer beyond 1e308 is refused.
+
+    A numpy int or float scalar counts as the number it holds (a dict built from numpy arrays
+    holds them; JSON never does), a numpy bool does not. A list where a number belongs is
+    refused at once: the lists nest exactly ``len(dims)`` deep.
 
     The lists are walked once to check them; the array is then built by numpy from the lists
     themselves (no flat copy of the entries).
@@ -81,6 +82,11 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
                               f"({name}{where} has {shape[depth]})", idx)
 
     def leaf(v: Any, idx: tuple[int, ...]) -> None:
+        if isinstance(v, list):
+            raise error(name, f"= {_brief(v)}: must be a number, not a list ({name} nests {len(dims)} "
+                              f"level{'s' if len(dims) > 1 else ''} of lists: {', '.join(dims)})", idx)
+        if is_real(v) and isinstance(v, np.generic):
+            v = v.item()   # np.int64(3) -> 3; an np.longdouble stays one and is refused below
         if type(v) is bool or not isinstance(v, (int, float)):
             raise error(name, f"= {_brief(v)}: must be a number", idx)
         if isinstance(v, int):

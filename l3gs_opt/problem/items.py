@@ -42,6 +42,7 @@ from l3gs_opt.errors import InstanceError
 from l3gs_opt.problem.instance import SCHEMA as INSTANCE_SCHEMA
 from l3gs_opt.problem.instance import (Instance, Options, _byte_array, _first_index, _show, binary_array,
                                        checked_utility_values, validated_common)
+from l3gs_opt.problem.instance import brief as _brief
 
 __all__ = [
     "ITEMS_SCHEMA",
@@ -57,6 +58,8 @@ __all__ = [
 ITEMS_SCHEMA = "l3gs-opt/items@1"
 #: Largest object or group label: labels are kept as int64 and shown in names and arrivals.
 _MAX_LABEL = 2**31 - 1
+#: Items of a precedence cycle shown in its error (a cycle may run through every item of a file).
+_MAX_CYCLE_SHOWN = 10
 
 
 class ItemInstanceError(InstanceError):
@@ -138,11 +141,6 @@ def _edges(value: Any, N: int, objects: np.ndarray) -> np.ndarray:
     return out
 
 
-def _brief(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 24 else text[:21] + "..."
-
-
 def _topological(N: int, parents: Sequence[tuple[int, ...]], children: Sequence[tuple[int, ...]]) -> np.ndarray:
     """Items in an order where every parent comes before its children (Kahn); a cycle is an error
     naming the items on one cycle."""
@@ -165,8 +163,11 @@ def _topological(N: int, parents: Sequence[tuple[int, ...]], children: Sequence[
             if nxt in pos:
                 cycle = path[pos[nxt]:][::-1]
                 cycle.append(cycle[0])
-                raise ItemInstanceError("requires", f"cycle through item {nxt}: "
-                                                    f"{' -> '.join(str(i) for i in cycle)} (parent -> child)")
+                if len(cycle) > _MAX_CYCLE_SHOWN + 1:
+                    steps = " -> ".join(str(i) for i in cycle[:_MAX_CYCLE_SHOWN]) + f" -> ... ({len(cycle) - 1} items)"
+                else:
+                    steps = " -> ".join(str(i) for i in cycle)
+                raise ItemInstanceError("requires", f"cycle through item {nxt}: {steps} (parent -> child)")
             pos[nxt] = len(path)
             path.append(nxt)
     out = np.asarray(order, dtype=np.int64)
@@ -203,7 +204,8 @@ class ItemInstance:
         As for :class:`~l3gs_opt.problem.instance.Instance`; ``same_slot_layers`` applies to every edge
         (False: a child arrives strictly after its parent).
     names : sequence of str, optional
-        Item names, N of them (e.g. the bundle chunk ``o3_l1_compact``).
+        Item names, N of them (e.g. the bundle chunk ``o3_l1_compact``): labels, not keys, so
+        two items may share one.
     meta : mapping, optional
         Free-form provenance (JSON-serialisable).
 

@@ -8,8 +8,9 @@ from typing import Callable
 
 import numpy as np
 
-from l3gs_opt.checks import shown
+from l3gs_opt.checks import is_real, shown
 from l3gs_opt.errors import L3gsError, SolveError
+from l3gs_opt.problem.arguments import check_time_limit
 from l3gs_opt.scene.camera_paths import intrinsics_from_fov
 from l3gs_opt.scene.cameras import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, CameraError
 from l3gs_opt.simulator.link import BUDGETS, CARRIES
@@ -90,7 +91,8 @@ class SimConfig:
     pose_start_s : float
         Pose-log time of slot 0's start, seconds.
     time_limit_s : float or None
-        Seconds per scheduling call (passed to the solver).
+        Seconds per scheduling call (passed to the solver), > 0; None or ``inf``: no limit (stored
+        as None, as :func:`l3gs_opt.methods.solve` reads it).
     horizon : int or None
         Multi-slot methods plan at most this many slots ahead (None: the rest of the run; at most
         :data:`~l3gs_opt.traces.bandwidth.MAX_TRACE_SAMPLES`).
@@ -231,13 +233,12 @@ class SimConfig:
                 get_utility(v)
             except UtilityNameError as exc:
                 raise SimulationError(name, str(exc)) from None
-        if self.time_limit_s is not None:
-            positive("time_limit_s")
+        self._check_time_limit()
         if self.horizon is not None:
             positive("horizon", integer=True)
             check_count("horizon", self.horizon, high=MAX_TRACE_SAMPLES, error=in_trace)
         p = self.pose_start_s
-        if isinstance(p, bool) or not isinstance(p, (int, float)) or not math.isfinite(_float(p)) or p < 0:
+        if not is_real(p) or not math.isfinite(_float(p)) or p < 0:
             raise SimulationError("pose_start_s", f"{shown(p)}: must be a number >= 0 (seconds)")
         f = self.sh_upgrade_utility
         if isinstance(f, str):
@@ -247,6 +248,16 @@ class SimConfig:
         elif isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
                 or not (0.0 <= _float(f) <= 1.0):
             raise SimulationError("sh_upgrade_utility", f"{shown(f)}: must be 'residual', 'bands' or a number in [0, 1]")
+
+    def _check_time_limit(self) -> None:
+        """``time_limit_s`` by solve()'s own rule (:func:`~l3gs_opt.problem.arguments.check_time_limit`):
+        ``inf`` is no limit, stored as None, so that the config says what every solve call gets."""
+        v = self.time_limit_s
+        try:
+            seconds = check_time_limit(v)
+        except SolveError as exc:   # "time_limit_s = -1: must be ...": the value, then solve()'s words
+            raise SimulationError("time_limit_s", f"{shown(v)}: {str(exc).rsplit(': ', 1)[-1]}") from None
+        object.__setattr__(self, "time_limit_s", seconds)
 
 
 @dataclass(frozen=True)
