@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import reprlib
 from pathlib import Path
 from typing import Callable
 
@@ -22,7 +23,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 
-__all__ = ["ArgumentError", "ErrorFactory", "field_error", "shown", "is_real", "check_count", "check_seed",
+__all__ = ["ArgumentError", "ErrorFactory", "field_error", "shown", "brief", "is_real", "as_float", "check_count", "check_seed",
            "check_number", "check_path", "real_array"]
 
 #: ``(field, message) -> Exception``: how a check raises the caller's error.
@@ -55,6 +56,34 @@ def shown(value: object) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+#: A container's repr for messages: a few levels and entries, never the whole (a list nested
+#: 100,000 deep would exhaust ``repr``'s recursion, a list of 10^6 numbers fill the message).
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel, _SHORT_REPR.maxlist, _SHORT_REPR.maxtuple, _SHORT_REPR.maxdict = 3, 4, 4, 2
+
+
+def brief(value: object) -> str:
+    """Any value, as given, for a message: at most 24 characters and never an exception
+    (:data:`_SHORT_REPR` for containers; :func:`shown` for an int of 5,000 digits)."""
+    if isinstance(value, (list, tuple, dict, set, frozenset)):
+        try:
+            text = _SHORT_REPR.repr(value)
+        except ValueError:   # an int of more than 4300 digits inside
+            text = f"<{type(value).__name__}>"
+    else:
+        text = shown(value)
+    return text if len(text) <= 24 else text[:21] + "..."
+
+
+def as_float(value: object) -> float:
+    """A real number as a float; an int beyond float's range (``10**400``) as ``inf`` or ``-inf``,
+    where ``float()`` raises OverflowError (``float("1e400")`` is inf too)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def is_real(value: object) -> bool:
     """A real number type: Python or numpy int or float, never a bool (True is not 1 Mbit/s)."""
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
@@ -82,12 +111,7 @@ def check_number(field: str, value: object, ok: Callable[[float], bool], want: s
                  error: ErrorFactory = ArgumentError) -> float:
     """``value`` as a float if it is a finite real number (not a bool or a string) and ``ok(value)``,
     else ``error(field, "= value: must be WANT")``."""
-    number = math.nan
-    if is_real(value):
-        try:
-            number = float(value)
-        except OverflowError:   # an int beyond float's range: not finite
-            pass
+    number = as_float(value) if is_real(value) else math.nan
     if not (math.isfinite(number) and ok(number)):
         raise error(field, f"= {shown(value)}: must be {want}")
     return number

@@ -12,6 +12,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from l3gs_opt.checks import as_float, brief
 from l3gs_opt.errors import SolveError
 
 __all__ = ["check_time_limit", "check_slot", "check_options", "check_instance"]
@@ -35,10 +36,7 @@ def check_time_limit(value: Any, *, name: str = "time_limit_s") -> float | None:
     shown = value.item() if isinstance(value, np.generic) else value
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise SolveError(f"{name} = {shown!r}: must be a number of seconds > 0 (or inf for no limit)")
-    try:
-        seconds = float(value)
-    except OverflowError:   # an int beyond 1.8e308 s: longer than any run, as inf is (or -inf)
-        seconds = math.inf if value > 0 else -math.inf
+    seconds = as_float(value)   # an int beyond 1.8e308 s is inf: longer than any run
     if math.isnan(seconds) or seconds <= 0:
         raise SolveError(f"{name} = {shown!r}: must be > 0 seconds (or inf for no limit)")
     return None if math.isinf(seconds) else seconds
@@ -61,11 +59,6 @@ def check_slot(value: Any, T: int, *, name: str = "slot") -> int | None:
     return int(value)
 
 
-def _brief(value: Any) -> str:
-    text = repr(value.item() if isinstance(value, np.generic) else value)
-    return text if len(text) <= 24 else text[:21] + "..."
-
-
 def check_options(value: Any, *, name: str = "options") -> dict[str, Any]:
     """``options`` (backend-specific settings) as every method takes it: ``None`` (none) or a
     mapping from option names (``str``) to values, returned as a new ``dict``. Whether a backend
@@ -79,11 +72,11 @@ def check_options(value: Any, *, name: str = "options") -> dict[str, Any]:
     if value is None:
         return {}
     if not isinstance(value, Mapping):
-        raise SolveError(f"{name} = {_brief(value)}: must be a mapping of option names (str) to values, "
+        raise SolveError(f"{name} = {brief(value)}: must be a mapping of option names (str) to values, "
                          f"got {type(value).__name__}")
     for key in value:
         if not isinstance(key, str):
-            raise SolveError(f"{name}: key {_brief(key)} must be an option name (str), got {type(key).__name__}")
+            raise SolveError(f"{name}: key {brief(key)} must be an option name (str), got {type(key).__name__}")
     return dict(value)
 
 

@@ -22,14 +22,13 @@ from __future__ import annotations
 import copy
 import json
 import math
-import reprlib
 import types
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from l3gs_opt.checks import is_real, shown
+from l3gs_opt.checks import as_float, brief, is_real
 from l3gs_opt.errors import InstanceError
 from l3gs_opt.input_files import MAX_JSON_DEPTH, key_name, parse_json
 
@@ -111,34 +110,12 @@ def _show(value: np.generic) -> str:
     return repr(value.item())
 
 
-#: A container's repr for messages: a few levels and entries, never the whole (a list nested
-#: 100,000 deep would exhaust ``repr``'s recursion, a list of 10^6 numbers fill the message).
-_SHORT_REPR = reprlib.Repr()
-_SHORT_REPR.maxlevel, _SHORT_REPR.maxlist, _SHORT_REPR.maxtuple, _SHORT_REPR.maxdict = 3, 4, 4, 2
-
-
-def brief(value: Any) -> str:
-    """Any value, as given, for a message: at most 24 characters and never an exception (see
-    :data:`_SHORT_REPR` for containers; :func:`~l3gs_opt.checks.shown` for an int of 5,000 digits)."""
-    if isinstance(value, (list, tuple, dict, set, frozenset)):
-        try:
-            text = _SHORT_REPR.repr(value)
-        except ValueError:   # an int of more than 4300 digits inside
-            text = f"<{type(value).__name__}>"
-    else:
-        text = shown(value)
-    return text if len(text) <= 24 else text[:21] + "..."
-
-
 def validated_common(slot_s: Any, options: Any, names: Any, meta: Any, *, count: int,
                      axis: str) -> tuple[float, "Options", tuple[str, ...] | None, types.MappingProxyType]:
     """Check the fields both instance forms share: ``slot_s`` (seconds, > 0), ``options``,
     ``names`` (``count`` strings, one per ``axis`` entry) and ``meta`` (a JSON object, copied by a
     JSON round trip and frozen). Raises :class:`InstanceError` naming the field and index."""
-    try:
-        seconds = float(slot_s) if is_real(slot_s) else math.nan
-    except OverflowError:   # an integer beyond float's range
-        seconds = math.inf
+    seconds = as_float(slot_s) if is_real(slot_s) else math.nan
     if not math.isfinite(seconds) or seconds <= 0:
         raise InstanceError("slot_s", f"{brief(slot_s)}: must be a positive number of seconds")
     options = options if options is not None else Options()

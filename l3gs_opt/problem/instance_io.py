@@ -14,11 +14,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from l3gs_opt.checks import brief as _brief
 from l3gs_opt.checks import is_real
 from l3gs_opt.errors import InstanceError, os_error_reason
 from l3gs_opt.input_files import key_name, load_npz, npz_text, parse_json, read_json
 from l3gs_opt.problem.instance import SCHEMA, Instance, Options
-from l3gs_opt.problem.instance import brief as _brief
 
 __all__ = ["MAX_JSON_BYTES", "MAX_NPZ_BYTES", "instance_from_dict", "instance_from_raw", "load_instance",
            "save_instance", "nested_array", "npz_fields", "read_raw_problem", "read_problem_file",

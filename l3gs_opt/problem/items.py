@@ -38,11 +38,11 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from l3gs_opt.checks import brief as _brief
 from l3gs_opt.errors import InstanceError
 from l3gs_opt.problem.instance import SCHEMA as INSTANCE_SCHEMA
 from l3gs_opt.problem.instance import (Instance, Options, _byte_array, _first_index, _show, binary_array,
                                        checked_utility_values, validated_common)
-from l3gs_opt.problem.instance import brief as _brief
 
 __all__ = [
     "ITEMS_SCHEMA",

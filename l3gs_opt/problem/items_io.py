@@ -31,11 +31,6 @@ _DIMS = {"bandwidth": ("slots",), "object": ("items",), "cost": ("items",), "uti
          "group": ("items",), "held": ("items",), "requires": ("edges", "ends")}
 
 
-def _brief(value: object) -> str:
-    text = repr(value)
-    return text if len(text) <= 24 else text[:21] + "..."
-
-
 def _nested(value: Any, name: str, *, integer: bool) -> np.ndarray:
     return nested_array(value, name, _DIMS[name], integer=integer, error=ItemInstanceError,
                         pairs=name == "requires")

@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from l3gs_opt.checks import is_real, shown
+from l3gs_opt.checks import as_float, is_real, shown
 from l3gs_opt.errors import L3gsError, SolveError
 from l3gs_opt.problem.arguments import check_time_limit
 from l3gs_opt.scene.camera_paths import intrinsics_from_fov
@@ -40,15 +40,6 @@ class SimulationError(L3gsError, ValueError):
         self.field = field
         self.index = index
         super().__init__(f"{field}{'' if index is None else f'[{index}]'}: {message}")
-
-
-def _float(v) -> float:
-    """``v`` as a float, ``inf`` for an int too large for one (``10**400``: float() would raise
-    OverflowError), so that the range checks refuse it by name."""
-    try:
-        return float(v)
-    except OverflowError:
-        return math.inf if v > 0 else -math.inf
 
 
 @dataclass(frozen=True)
@@ -162,7 +153,7 @@ class SimConfig:
         def positive(name: str, integer: bool = False) -> None:
             v = getattr(self, name)
             ok = isinstance(v, (int, np.integer)) if integer else isinstance(v, (int, float, np.integer, np.floating))
-            if isinstance(v, bool) or not ok or not math.isfinite(_float(v)) or v <= 0:
+            if isinstance(v, bool) or not ok or not math.isfinite(as_float(v)) or v <= 0:
                 kind = "a positive integer" if integer else "a positive number"
                 raise SimulationError(name, f"{shown(v)}: must be {kind}")
 
@@ -172,7 +163,7 @@ class SimConfig:
             positive(name, integer=True)
         d = self.decision_s
         if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(_float(d)) or not 0 <= d <= self.slot_s / self.substeps:
+                or not math.isfinite(as_float(d)) or not 0 <= d <= self.slot_s / self.substeps:
             raise SimulationError("decision_s", f"{shown(d)}: must be seconds in [0, slot_s / substeps]")
         # Each is work per slot: a huge value is a typo that would run for days, not a setting.
         from l3gs_opt.pipeline.counts import MAX_SAMPLES_PER_SLOT, MAX_SUBSTEPS, check_count
@@ -238,7 +229,7 @@ class SimConfig:
             positive("horizon", integer=True)
             check_count("horizon", self.horizon, high=MAX_TRACE_SAMPLES, error=in_trace)
         p = self.pose_start_s
-        if not is_real(p) or not math.isfinite(_float(p)) or p < 0:
+        if not is_real(p) or not math.isfinite(as_float(p)) or p < 0:
             raise SimulationError("pose_start_s", f"{shown(p)}: must be a number >= 0 (seconds)")
         f = self.sh_upgrade_utility
         if isinstance(f, str):
@@ -246,7 +237,7 @@ class SimConfig:
                 raise SimulationError("sh_upgrade_utility", f"{f!r} is not one of {', '.join(SH_UPGRADE_UTILITIES)} "
                                                             "or a number in [0, 1]")
         elif isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
-                or not (0.0 <= _float(f) <= 1.0):
+                or not (0.0 <= as_float(f) <= 1.0):
             raise SimulationError("sh_upgrade_utility", f"{shown(f)}: must be 'residual', 'bands' or a number in [0, 1]")
 
     def _check_time_limit(self) -> None:
