@@ -10,6 +10,8 @@ from __future__ import annotations
 import hashlib
 import shutil
 import socket
+import urllib.request
+from typing import Optional
 
 import pytest
 
@@ -17,7 +19,8 @@ pytest.importorskip("aiohttp")
 
 from l3gs_opt.delivery.fetch import FETCH_DIR, MAX_RETRY_S, MIN_SLOT_S, FetchError, fetch  # noqa: E402
 from l3gs_opt.delivery.server import ServerError, _is_loopback, start_server  # noqa: E402
-from l3gs_opt.scene.stream_index import export_stream  # noqa: E402
+from l3gs_opt.scene.stream_index import (StreamError, export_stream, load_stream_chunk,  # noqa: E402
+                                         read_stream)
 from cli_helpers import one_error_line, run_cli, tiny_sort_bundle  # noqa: E402
 
 
@@ -150,3 +153,41 @@ def test_fetch_path_rate_needs_cameras(world, capsys, tmp_path, rate):
     line = one_error_line(capsys, *_fetch_args(world, tmp_path / "o"), "--path-rate", rate)
     assert line.startswith("error: --path-rate: ") and "only --path-format cameras reads it" in line, line
     assert not (tmp_path / "o").exists()
+
+
+def _get(url: str, headers: Optional[dict] = None) -> tuple[int, bytes]:
+    with urllib.request.urlopen(urllib.request.Request(url, headers=headers or {}), timeout=10) as r:
+        return r.status, r.read()
+
+
+# -- 7: serve started on an export whose chunk bytes fail their sha256 (clients then refused each chunk)
+@pytest.mark.parametrize("pack", ["single", "per-chunk"])
+def test_serve_refuses_an_export_whose_chunk_fails_its_hash(world, capsys, tmp_path, busy_port, pack):
+    out = export_stream(world["bundle"], tmp_path / pack, pack=pack).parent
+    index = read_stream(out)
+    c = index.chunks[len(index.chunks) // 2]
+    data = out / c.file
+    raw = bytearray(data.read_bytes())
+    raw[c.start] ^= 0xFF                      # one flipped byte: same size, so only the hash can tell
+    data.write_bytes(bytes(raw))
+    with pytest.raises(StreamError, match=rf"^chunks\[{c.index}\]: sha256 .* \(corrupt or stale data\)"):
+        start_server(out, port=0, timeout_s=2.0)
+    line = one_error_line(capsys, "serve", out, "--port", busy_port)
+    assert line.startswith(f"error: chunks[{c.index}]: sha256 of the {c.bytes} bytes is "), line
+    # --no-verify skips the hashing: that serve gets as far as binding the (busy) port
+    line = one_error_line(capsys, "serve", out, "--port", busy_port, "--no-verify")
+    assert line == f"error: --port: {busy_port}: cannot listen on 127.0.0.1: address already in use", line
+    with start_server(out, port=0, verify=False) as server:
+        status, got = _get(server.url + "/" + c.file, {"Range": c.range_header})
+    assert status == 206 and got == bytes(raw[c.start:c.end])   # served as is, and the client's check refuses it
+    with pytest.raises(StreamError, match=r"corrupt or stale"):
+        load_stream_chunk(index, c, got)
+
+
+def test_serve_verifies_a_sound_export_and_takes_only_bool_flags(world):
+    with start_server(world["single"], port=0) as server:
+        status, _ = _get(server.url + "/index.json")
+    assert status == 200
+    for name in ("verify", "shape_anonymous"):
+        with pytest.raises(ServerError, match=rf"^{name}: 'no': must be True or False"):
+            start_server(world["single"], port=0, **{name: "no"})

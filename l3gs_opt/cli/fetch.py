@@ -59,7 +59,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     trace = None if args.trace is None else trace_shaper(args.trace, mbps=args.mbps,
                                                          format=args.trace_format or "auto")
     run_server(args.folder, host=args.host, port=args.port, trace=trace,
-               shape_anonymous=not args.no_anonymous_pacing,
+               shape_anonymous=not args.no_anonymous_pacing, verify=not args.no_verify,
                announce=f"serving {args.folder} on http://{args.host}:{args.port}"
                         + ("" if trace is None else f", paced to {args.trace}") + " (Ctrl-C stops)")
     return 0
@@ -125,4 +125,7 @@ def register(subparsers) -> None:
     s.add_argument("--mbps", type=float, default=None, help="with --trace: scale it to this mean (Mbit/s)")
     s.add_argument("--no-anonymous-pacing", action="store_true",
                    help="do not pace requests without an X-L3gs-Client name (e.g. a fetch's catalogue)")
+    s.add_argument("--no-verify", action="store_true",
+                   help="start without hashing every chunk against the index (by default a corrupt or stale "
+                        "export is refused before the server listens)")
     s.set_defaults(func=_cmd_serve)

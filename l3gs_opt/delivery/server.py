@@ -8,6 +8,9 @@ utility tables (:mod:`l3gs_opt.delivery.tables`), of ``/tables.json`` and the ta
 allow-list is read from the index when the server starts, and each file is opened by its path
 under the folder resolved then (after links), so a link planted later cannot lead out (restart the
 server after exporting again into the same folder: new data file names are not served before).
+Every chunk's bytes are checked against the index's sha256 when the server starts (``verify``, on
+by default): a corrupt or stale export is refused by name, not served to clients that would then
+refuse each chunk in turn.
 
 HTTP semantics (RFC 9110)
 -------------------------
@@ -49,6 +52,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import hashlib
 import ipaddress
 import logging
@@ -64,7 +68,7 @@ from aiohttp import web
 from l3gs_opt.delivery.shaping import MAX_AGE_S, TraceShaper, trace_shaper
 from l3gs_opt.delivery.tables import TABLES_NAME, read_tables
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.scene.stream_index import INDEX_NAME, read_stream
+from l3gs_opt.scene.stream_index import INDEX_NAME, read_stream, verify_stream
 
 __all__ = ["ServerError", "ByteRange", "parse_range", "make_app", "start_server", "ServerHandle", "run_server",
            "CLIENT_HEADER", "TRACE_SLOT_HEADER", "PIECE_BYTES"]
@@ -168,13 +172,15 @@ def _etag_matches(header: str, etag: str) -> bool:
 class _Files:
     """The allow-list (URL path -> resolved file) and the ETag cache."""
 
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, verify: bool = True):
         folder = Path(folder)
         if folder.name == INDEX_NAME and folder.is_file():   # the index itself, as read_stream takes it
             folder = folder.parent
         if not folder.is_dir():
             raise ServerError("folder", f"{folder} is not a folder (expected a stream export holding {INDEX_NAME})")
         index = read_stream(folder)
+        if verify:
+            verify_stream(index)
         root = folder.resolve()
         self.root = root
         self.paths = {INDEX_NAME: root / INDEX_NAME}
@@ -208,7 +214,7 @@ class _Files:
         return tag
 
 
-def make_app(folder, *, trace=None, shape_anonymous: bool = True) -> web.Application:
+def make_app(folder, *, trace=None, shape_anonymous: bool = True, verify: bool = True) -> web.Application:
     """The aiohttp application serving the stream export in ``folder`` (see the module docstring).
 
     Parameters
@@ -219,15 +225,20 @@ def make_app(folder, *, trace=None, shape_anonymous: bool = True) -> web.Applica
         Pace file bodies to this trace per session (None: as fast as the host allows).
     shape_anonymous : bool
         Pace requests without an ``X-L3gs-Client`` name per connection (else they are not paced).
+    verify : bool
+        Hash every chunk against the index first (reads the whole export once; off: serve as is).
 
     Raises
     ------
     StreamError
-        ``folder`` holds no valid stream index.
+        ``folder`` holds no valid stream index, or (``verify``) a chunk whose bytes are not the index's.
     ServerError, ShapingError
         ``folder`` is not a folder; a bad trace.
     """
-    files = _Files(Path(folder))
+    for name, flag in (("shape_anonymous", shape_anonymous), ("verify", verify)):
+        if not isinstance(flag, bool):
+            raise ServerError(name, f"{flag!r}: must be True or False")
+    files = _Files(Path(folder), verify)
     shaper = None if trace is None else trace_shaper(trace)
     app = web.Application()
     app[_FILES], app[_SHAPER], app[_ANONYMOUS] = files, shaper, bool(shape_anonymous)
@@ -365,8 +376,16 @@ def _check_bind(host: str, port: int) -> None:
         raise ServerError("port", f"{port!r}: must be a port number in [0, 65535] (0: any free port)")
 
 
+def _bind_error(exc: BaseException, host: str, port: int) -> BaseException:
+    """A failure to listen as one line naming ``port`` (aiohttp words it "error while attempting to
+    bind on address ..."); any other exception as it is."""
+    if isinstance(exc, OSError) and exc.errno in (errno.EADDRINUSE, errno.EADDRNOTAVAIL, errno.EACCES):
+        return ServerError("port", f"{port}: cannot listen on {host}: {os.strerror(exc.errno).lower()}")
+    return exc
+
+
 def start_server(folder, host: str = "127.0.0.1", port: int = 0, trace=None, *,
-                 shape_anonymous: bool = True, timeout_s: float = 10.0) -> ServerHandle:
+                 shape_anonymous: bool = True, verify: bool = True, timeout_s: float = 10.0) -> ServerHandle:
     """Serve ``folder`` (see :func:`make_app`) from a background thread; returns once it listens.
 
     Parameters
@@ -377,17 +396,18 @@ def start_server(folder, host: str = "127.0.0.1", port: int = 0, trace=None, *,
         Loopback address to bind (127.0.0.0/8, ``::1`` or ``localhost``; anything else is refused).
     port : int
         Port (0: a free one; read it from ``handle.port``).
-    trace : see :func:`make_app`
+    trace, shape_anonymous, verify : see :func:`make_app`
     timeout_s : float
         Seconds to wait for the server to listen.
 
     Raises
     ------
     StreamError, ServerError, ShapingError
-        Bad folder or trace (raised here, before the thread starts); ``OSError`` if the address is taken.
+        Bad folder or trace (raised here, before the thread starts); ``ServerError`` naming ``port`` if the
+        address is taken.
     """
     _check_bind(host, port)
-    app = make_app(folder, trace=trace, shape_anonymous=shape_anonymous)
+    app = make_app(folder, trace=trace, shape_anonymous=shape_anonymous, verify=verify)
     loop = asyncio.new_event_loop()
     # Responses still being paced when stop() is called are cut after a second, not the default minute.
     runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=1.0)
@@ -417,18 +437,21 @@ def start_server(folder, host: str = "127.0.0.1", port: int = 0, trace=None, *,
     if not started.wait(timeout_s):
         raise ServerError("port", f"the server did not start listening within {timeout_s} s")
     if "error" in ready:
-        raise ready["error"]
+        raise _bind_error(ready["error"], host, port)
     p = ready["port"]
     shown = f"[{host}]" if ":" in host else host
     return ServerHandle(url=f"http://{shown}:{p}", host=host, port=p, _loop=loop, _thread=thread, _runner=runner)
 
 
 def run_server(folder, host: str = "127.0.0.1", port: int = 8000, trace=None, *,
-               shape_anonymous: bool = True, announce: Optional[str] = None) -> None:
+               shape_anonymous: bool = True, verify: bool = True, announce: Optional[str] = None) -> None:
     """Serve ``folder`` in the foreground until interrupted (the ``serve`` command); ``announce`` is
     printed once the server listens (not before its checks: a refused folder or address prints
     only its error)."""
     _check_bind(host, port)
-    app = make_app(folder, trace=trace, shape_anonymous=shape_anonymous)
-    web.run_app(app, host=host, port=port, access_log=None,
-                print=None if announce is None else (lambda _aiohttp_line: print(announce, flush=True)))
+    app = make_app(folder, trace=trace, shape_anonymous=shape_anonymous, verify=verify)
+    try:
+        web.run_app(app, host=host, port=port, access_log=None,
+                    print=None if announce is None else (lambda _aiohttp_line: print(announce, flush=True)))
+    except OSError as exc:
+        raise _bind_error(exc, host, port) from exc
