@@ -342,3 +342,36 @@ def test_objective_matches_brute_force_and_ignores_order(case, data):
         for fn in CHUNK_FUNCTIONS:
             with pytest.raises(InstanceError, match=rf"^arrivals\[{k}\] = "):
                 fn(inst, broken, slot=slot)
+
+
+# -- a dict built from numpy arrays (noticed in the twentieth session: "got ndarray")
+def _as_arrays(d: dict, keys) -> dict:
+    return {k: (np.asarray(v) if k in keys else v) for k, v in d.items()}
+
+
+def test_instance_from_dict_reads_numpy_arrays_as_the_lists_they_hold():
+    d = layered().to_dict()
+    want = L.instance_from_dict(d)
+    for keys in (("bandwidth", "cost", "utility"), ("utility",)):
+        got = L.instance_from_dict(_as_arrays(d, keys))
+        for k in ("bandwidth", "cost", "utility"):
+            a, b = np.asarray(getattr(want, k)), np.asarray(getattr(got, k))
+            assert a.dtype == b.dtype and np.array_equal(a, b), k
+    rows = dict(d, cost=[np.asarray(r) for r in d["cost"]])          # arrays inside a list
+    assert np.array_equal(np.asarray(L.instance_from_dict(rows).cost), np.asarray(want.cost))
+    it = items().to_dict()
+    got = L.items_from_dict(_as_arrays(it, ("bandwidth", "cost", "utility", "object", "requires")))
+    assert got.to_dict() == L.items_from_dict(it).to_dict()
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("cost", np.array([[True, False], [True, True]]), r"^cost\[0\]\[0\] = True: must be a number"),
+    ("cost", np.array([[10, 20.5], [30, 40]]), r"^cost\[0\]\[1\] = 20\.5: .*fractional bytes"),
+    ("cost", np.array([[10, 20, 5], [30, 40, 5]]), r"^utility: has shape"),
+    ("cost", np.array([["10", "20"], ["30", "40"]]), r"^cost\[0\]\[0\] = '10': must be a number"),
+    ("bandwidth", np.array(100), r"^bandwidth: must be a list over slots, got int"),
+    ("utility", np.full((2, 2, 2), np.nan), r"^utility\[0\]\[0\]\[0\]"),
+])
+def test_numpy_arrays_in_a_dict_are_checked_entry_by_entry(field, value, match):
+    with pytest.raises(InstanceError, match=match):
+        L.instance_from_dict(dict(layered().to_dict(), **{field: value}))

@@ -56,8 +56,9 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
     float64 and an integer beyond 1e308 is refused.
 
     A numpy int or float scalar counts as the number it holds (a dict built from numpy arrays
-    holds them; JSON never does), a numpy bool does not. A list where a number belongs is
-    refused at once: the lists nest exactly ``len(dims)`` deep.
+    holds them; JSON never does), a numpy bool does not; a numpy array anywhere in the nesting
+    counts as the lists it holds (``arr.tolist()``), checked entry by entry as they are. A list
+    where a number belongs is refused at once: the lists nest exactly ``len(dims)`` deep.
 
     The lists are walked once to check them; the array is then built by numpy from the lists
     themselves (no flat copy of the entries).
@@ -103,6 +104,8 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
                                   "(above it the float may be rounded); write it as an integer", idx)
 
     def walk(v: Any, depth: int, idx: tuple[int, ...]) -> None:
+        if isinstance(v, np.ndarray):
+            v = v.tolist()   # a 0-d array becomes its scalar, refused below as "not a list"
         check_list(v, depth, idx)
         if depth < last:
             for i, item in enumerate(v):
@@ -112,6 +115,8 @@ def nested_array(value: Any, name: str, dims: tuple[str, ...], *, integer: bool,
             if type(item) is not float or integer:   # a plain float needs no check for a float array
                 leaf(item, idx + (i,))
 
+    if isinstance(value, np.ndarray):
+        value = value.tolist()   # the array is then built from these lists, as from JSON's
     walk(value, 0, ())
     full = tuple(0 if s is None else s for s in shape)
     dtype = np.int64 if integer and not found["fraction"] else np.float64
