@@ -59,6 +59,7 @@ _LAZY = {
     "experiments.plan": ["ExperimentError", "ExperimentPlan", "make_plan"],
     "experiments.run": ["run_experiments"],
     "simulator.shared": ["run_shared", "simulate_shared"],
+    "simulator.last_chunk": ["LastChunkPlan", "plan_last_chunk"],
     "simulator.render": ["RenderCache"],
     # The item form (l3gs-opt/items@1): precedence DAG and replacement groups (distill, hierarchy bundles).
     "problem.items": ["ITEMS_SCHEMA", "ItemInstanceError", "ItemInstance", "items_from_instance", "instance_arrivals",

@@ -9,6 +9,7 @@ where a scheduler has to choose.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -112,10 +113,11 @@ def scene_story(out_dir: Path, *, time_limit_s: float = 10.0) -> dict:
 
 #: Methods of the online story: the paper's scheduler, a planner that values the future, the
 #: significance-order baseline and the preloaded full model (the ceiling).
-#: (method, splat utility): l3gs by the paper's Eq. 1 and by visibility, whole-scene layers by
-#: visibility, and the two references.
-ONLINE_METHODS = (("l3gs", "eq1"), ("l3gs", "visibility"), ("l3gs-noseg", "visibility"), ("sort", "eq1"),
-                  ("preload", "eq1"))
+#: (method, splat utility, what the slot's last chunk counts): l3gs by the paper's Eq. 1 and by
+#: visibility, the latter also counting the first splats of the chunk a slot's bytes end inside
+#: (``SimConfig.last_chunk``), whole-scene layers by visibility, and the two references.
+ONLINE_METHODS = (("l3gs", "eq1", "whole"), ("l3gs", "visibility", "whole"), ("l3gs", "visibility", "prefix"),
+                  ("l3gs-noseg", "visibility", "whole"), ("sort", "eq1", "whole"), ("preload", "eq1", "whole"))
 
 
 def online_story(out_dir: Path, bundle_dir: Path, log: Path, teacher, mbps: float) -> dict:
@@ -136,14 +138,15 @@ def online_story(out_dir: Path, bundle_dir: Path, log: Path, teacher, mbps: floa
     print(f"4. online delivery: the simulator over the same {SLOTS} s (lr viewport and harmonic-mean bandwidth "
           "predictors, per-slot budget, splats streamed in utility order)")
     results = {}
-    for m, u in ONLINE_METHODS:
-        label = m if u == "eq1" else f"{m}[{u}]"
-        r = simulate(bundle_dir, log, bandwidth, m, config=config, reference=teacher, mapping=Z_UP_MAPPING,
-                     out_dir=out_dir / "online" / label.replace(":", "-").replace("[", "-").rstrip("]"), utility=u)
+    for m, u, last in ONLINE_METHODS:
+        label = (m if u == "eq1" else f"{m}[{u}]") + ("" if last == "whole" else f" {last}")
+        folder = label.replace(":", "-").replace("[", "-").replace("] ", "-").replace(" ", "-").rstrip("]")
+        r = simulate(bundle_dir, log, bandwidth, m, config=dataclasses.replace(config, last_chunk=last),
+                     reference=teacher, mapping=Z_UP_MAPPING, out_dir=out_dir / "online" / folder, utility=u)
         results[label] = r.summary
-    print(f"  {'method[utility]':<22} {'SSIM mean':>9}  SSIM per second")
+    print(f"  {'method[utility]':<24} {'SSIM mean':>9}  SSIM per second")
     for m, s in results.items():
-        print(f"  {m:<22} {s['ssim_mean']:>9.3f}  " + " ".join(f"{v:.2f}" for v in s["ssim_per_s"]))
+        print(f"  {m:<24} {s['ssim_mean']:>9.3f}  " + " ".join(f"{v:.2f}" for v in s["ssim_per_s"]))
     fig, ax = plt.subplots(figsize=(6.4, 3.2))
     for m, s in results.items():
         ax.plot(np.arange(1, len(s["ssim_per_s"]) + 1), s["ssim_per_s"], marker=".", label=f"{m} ({s['ssim_mean']:.3f})")

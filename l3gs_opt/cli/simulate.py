@@ -23,7 +23,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                        order_utility=args.order_utility, utility_mode=args.utility_mode,
                        splat_order=args.splat_order, carry=args.carry, decision_s=args.decision_s, time_limit_s=args.time_limit, horizon=args.horizon, fill=not args.no_fill,
                        backend=args.backend, substeps=args.substeps, bandwidth_bias=args.bandwidth_bias,
-                       sh_upgrade_utility=args.sh_upgrade_utility)
+                       sh_upgrade_utility=args.sh_upgrade_utility, last_chunk=args.last_chunk)
     rate = viewer_path_rate(args.path_rate, args.path_format)
     if args.resume and not args.out:
         raise SimulationError("resume", "needs --out (the folder of the interrupted run)")
@@ -171,6 +171,9 @@ def register(subparsers) -> None:
     p.add_argument("--carry", default="started", choices=["started", "head"],
                    help="what a slot's cut keeps in flight: the chunk that got bytes (default), or also the first "
                         "request still waiting for its first byte (as 'l3gs-opt fetch --carry head' keeps it open)")
+    p.add_argument("--last-chunk", default="whole", choices=["whole", "prefix"],
+                   help="what the per-slot MCKP of l3gs and l3gs-noseg counts: whole chunks only (the paper), or "
+                        "also the first splats of the one chunk the slot's bytes end inside (prefix)")
     p.add_argument("--splat-order", default="method", choices=["method", "stored"],
                    help="a chunk's splats on the wire: as the method says (by predicted utility), or in the "
                         "bundle's stored order, as 'l3gs-opt fetch' receives static chunk files by HTTP Range")

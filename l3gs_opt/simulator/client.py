@@ -170,7 +170,20 @@ class Client:
                   predicted_bytes_later=self.predicted if S > 1 else None)
         if cat.view in ("distill", "hierarchy"):
             return ItemSlotView(variant=cat.view, **kw)
+        values = self.inputs.splat_values
+        if values is not None:
+            def prefix(unit: tuple[int, ...]) -> np.ndarray:
+                rows = self.stream_rows(int(np.ravel_multi_index(unit, grid)))
+                return np.concatenate([[0.0], np.cumsum(values()[rows])])
+
+            kw.update(prefix=prefix, bytes_per_splat=cat.bytes_per_splat.reshape(grid))
         return SlotView(**kw)
+
+    def stream_rows(self, k: int) -> np.ndarray:
+        """Rows of unit ``k`` in the order the link sends them to this client in this slot."""
+        if self.spec.order == "utility":
+            return self.inputs.splat_order(k)
+        return self.cat.stored_rows(k) if self.spec.order == "file" else self.cat.rows[k]
 
     def plan(self) -> list[int]:
         """The unit ids this client requests in the current part of the slot."""
@@ -193,8 +206,7 @@ class Client:
         delivery = self.link.step([(k, int(cat.bytes[k])) for k in ids], bandwidth=share, head_bytes=head)
         t1 = time.perf_counter()
         for k in delivery.started:
-            self.order[k] = self.inputs.splat_order(k) if self.spec.order == "utility" \
-                else cat.stored_rows(k) if self.spec.order == "file" else cat.rows[k]
+            self.order[k] = self.stream_rows(k)
         acc["order_s"] += time.perf_counter() - t1
         for k, b in delivery.delivered.items():
             self.got[k] += b

@@ -13,6 +13,7 @@ from l3gs_opt.errors import L3gsError, SolveError
 from l3gs_opt.problem.arguments import check_time_limit
 from l3gs_opt.scene.camera_paths import intrinsics_from_fov
 from l3gs_opt.scene.cameras import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, CameraError
+from l3gs_opt.simulator.last_chunk import LAST_CHUNKS
 from l3gs_opt.simulator.link import BUDGETS, CARRIES
 from l3gs_opt.traces.bandwidth import MAX_TRACE_SAMPLES
 
@@ -109,6 +110,11 @@ class SimConfig:
         paper's model: requests go out as the slot starts). Meanwhile only the unit carried over
         streams; the bytes of that time it cannot use are lost (idle), as ``l3gs-opt fetch``
         measures them (its records' ``late_s``).
+    last_chunk : {"whole", "prefix"}
+        What the per-slot MCKP of ``l3gs`` and ``l3gs-noseg`` counts: whole chunks only (the
+        paper's model), or also the first splats of the one chunk the slot's bytes end inside
+        (:mod:`l3gs_opt.simulator.last_chunk`; needs per-splat values: ``utility_mode`` exact and
+        a utility without its own chunk values).
     sh_upgrade_utility : {"residual", "bands"} or float
         How a ``distill`` splat's Eq. 1 utility ``u`` is split between its compact form and its
         SH upgrade (Eq. 1 is colour-blind): the upgrade gets ``u * f``, the compact form
@@ -148,6 +154,7 @@ class SimConfig:
     carry: str = "started"
     decision_s: float = 0.0
     sh_upgrade_utility: str | float = "residual"
+    last_chunk: str = "whole"
 
     def __post_init__(self) -> None:
         def positive(name: str, integer: bool = False) -> None:
@@ -208,7 +215,7 @@ class SimConfig:
                                              f"{', '.join(b.value for b in Backend)}") from None
         for name, allowed in (("budget", BUDGETS), ("viewport", _VIEWPORT), ("bandwidth_predictor", _BANDWIDTH),
                               ("utility_mode", _UTILITY_MODES), ("splat_order", SPLAT_ORDERS),
-                              ("carry", CARRIES)):
+                              ("carry", CARRIES), ("last_chunk", LAST_CHUNKS)):
             if getattr(self, name) not in allowed:
                 raise SimulationError(name, f"{getattr(self, name)!r} is not one of {', '.join(allowed)}")
         from l3gs_opt.pipeline.utilities import UtilityNameError, get_utility, utility_names
@@ -259,7 +266,8 @@ class SlotInputs:
     utility); ``unit_utility``: predicted utility per unit (shape of the client's catalogue grid);
     ``lookup_s``: seconds the utility look-up took; ``predicted_bytes``: the bandwidth predictor's
     bytes for the slot; ``splat_order(k)``: the rows of unit ``k`` in the order they are sent
-    (descending predicted utility).
+    (descending predicted utility); ``splat_values()`` (``last_chunk="prefix"``, else None): the
+    value utility's predicted per-splat values, computed on the first call.
     """
 
     slot: int
@@ -268,4 +276,5 @@ class SlotInputs:
     lookup_s: float
     predicted_bytes: int
     splat_order: Callable[[int], np.ndarray]
+    splat_values: Callable[[], np.ndarray] | None = None
 

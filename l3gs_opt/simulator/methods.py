@@ -92,6 +92,10 @@ def method_spec(name: str, *, solver: str | None = None, representation: str = "
     if not isinstance(name, str) or not name:
         raise SimulationError("method", f"{name!r} must be a method name")
     kw = dict(time_limit_s=config.time_limit_s, backend=config.backend, fill=config.fill)
+    if config.last_chunk != "whole" and name not in ("l3gs", "l3gs-noseg"):
+        # Other methods do not solve the per-slot MCKP (and a separate version shows only when complete).
+        raise SimulationError("last_chunk", f"{config.last_chunk!r} changes the per-slot MCKP of l3gs and l3gs-noseg "
+                                            f"only, not method {name!r}")
     if name in ("l3gs", "l3gs-noseg", "separate"):
         solver = solver or "bb"
         _check_solver_name(solver, "solver")
@@ -104,8 +108,12 @@ def method_spec(name: str, *, solver: str | None = None, representation: str = "
         if name != "separate" and representation != "layered":
             raise SimulationError("method", f"{name!r} needs a layered bundle (variant layered, sort or distill), "
                                             f"not {variant!r}; use method 'separate'")
+        if config.last_chunk != "whole" and solver != "bb":
+            raise SimulationError("last_chunk", f"{config.last_chunk!r} is its own exact programme: it replaces the "
+                                                f"solver, so solver {solver!r} would not be used (leave it out)")
         view = "object" if name == "l3gs" else "scene"
-        return MethodSpec(name, solver, view, "utility", SlotSolverScheduler(solver, name=name, **kw))
+        return MethodSpec(name, solver, view, "utility",
+                          SlotSolverScheduler(solver, name=name, last_chunk=config.last_chunk, **kw))
     if name == "distill":
         if variant != "distill":
             raise SimulationError("method", f"'distill' needs a bundle built as variant distill (compact SH and "

@@ -9,7 +9,7 @@ before each later part of the slot) and returns an ordered list of units to requ
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
@@ -52,6 +52,9 @@ class SlotView:
     predicted_bytes_later : int or None
         Predicted bytes of each later slot; None: ``predicted_bytes`` (they differ when a slot is
         re-planned part-way, where ``predicted_bytes`` is what is left of this slot).
+    prefix : callable ``(unit) -> float array [splats + 1]`` or None
+        Predicted value of a unit's first ``n`` splats in the order they stream (given with
+        ``SimConfig.last_chunk="prefix"``); ``bytes_per_splat`` (int array [J, L]) with it.
     """
 
     slot: int
@@ -68,6 +71,8 @@ class SlotView:
     budget: str
     slot_s: float = 1.0
     predicted_bytes_later: int | None = None
+    prefix: Callable[[tuple[int, ...]], np.ndarray] | None = None
+    bytes_per_splat: np.ndarray | None = None
 
     @property
     def layered(self) -> bool:
@@ -237,23 +242,47 @@ def order_requests(view: SlotView, picks: Sequence[tuple[int, ...]], later: Sequ
 class SlotSolverScheduler:
     """The L3GS scheduler: each slot, the single-slot MCKP over the predicted bytes left after
     the in-flight chunk, given what is held or in flight, solved by ``solver`` (on an
-    :class:`ItemSlotView`: the item MCKP over precedence-closed sets)."""
+    :class:`ItemSlotView`: the item MCKP over precedence-closed sets).
+
+    ``last_chunk="prefix"`` (layered units, a view with ``prefix``): the slot's bytes may end
+    inside one chunk whose first splats count (:func:`~l3gs_opt.simulator.last_chunk.plan_last_chunk`,
+    its own exact programme: ``solver`` is not used); that chunk is requested after the whole ones."""
 
     solver: str = "bb"
     time_limit_s: float | None = None
     backend: str = "highs"
     fill: bool = True
     name: str = "l3gs"
+    last_chunk: str = "whole"
 
     def requests(self, view: SlotView) -> list[tuple[int, ...]]:
         from l3gs_opt.methods import solve
 
+        if self.last_chunk == "prefix" and view.prefix is not None:
+            return self._with_prefix(view)
         picks: list[tuple[int, ...]] = []
         if view.available_bytes > 0:
             inst = view.instance(1)   # its one slot has view.available_bytes
             sol = solve(inst, self.solver, slot=0, time_limit_s=self.time_limit_s, backend=self.backend)
             picks = [u for u, _ in view.arrival_units(sol)]
         return order_requests(view, picks, fill=self.fill)
+
+    def _with_prefix(self, view: SlotView) -> list[tuple[int, ...]]:
+        from l3gs_opt.simulator.last_chunk import plan_last_chunk
+
+        plan = plan_last_chunk(view.cost, np.where(view.empty, 0.0, view.utility), view.instance_held(), view.empty,
+                               view.available_bytes, view.prefix, view.bytes_per_splat)
+        out = order_requests(view, plan.picks, fill=False)
+        more = [order_requests(view, [*out, plan.partial], fill=False)] if plan.partial is not None else []
+        if self.fill:   # (the partial last of the slot's own requests: its bytes end inside it)
+            more.append(order_requests(view, [*out, *(more[0] if more else [])], fill=True))
+        seen = set(out)
+        for group in more:
+            for u in group:
+                if u not in seen:
+                    seen.add(u)
+                    out.append(u)
+        return out
 
 
 @dataclass

@@ -427,9 +427,10 @@ class Simulation:
         pred = self.prediction(t)
         val = self.valuation(utility, order_utility)
         unit_utility, utility_s = val.unit_values(t, cat, held)
+        values = val.value_source(t, cat, held) if self.config.last_chunk == "prefix" else None
         return SlotInputs(slot=t, prediction=pred, unit_utility=unit_utility, lookup_s=utility_s,
                           predicted_bytes=self._predicted_bytes(t, history, clients),
-                          splat_order=lambda k: val.splat_order(t, cat, k, held))
+                          splat_order=lambda k: val.splat_order(t, cat, k, held), splat_values=values)
 
     # -- one method ----------------------------------------------------------------------
     def spec(self, method: "str | MethodSpec", solver: str | None = None, *, utility: str | None = None,

@@ -131,6 +131,31 @@ class Valuation:
         return sim.tables[name]
 
     # -- splat order ----------------------------------------------------------------------------------
+    def value_source(self, t: int, cat: Catalog, held: np.ndarray | None):
+        """``() -> float array [N]``: the value utility's per-splat values for slot ``t``, computed
+        on the first call (for ``last_chunk="prefix"``, which sums a unit's first splats).
+
+        Raises
+        ------
+        SimulationError
+            No per-splat values to sum: ``utility_mode="table"``, a utility with its own chunk
+            values, or units with forms (``distill``).
+        """
+        if self.sim.config.utility_mode == "table" or len(cat.forms) > 1 \
+                or type(self.utility).chunk_values is not SplatUtility.chunk_values:
+            why = ("utility_mode 'table' has no per-splat values" if self.sim.config.utility_mode == "table" else
+                   "distill units split each splat between two forms" if len(cat.forms) > 1 else
+                   f"utility {self.utility.name!r} values whole chunks, not splats")
+            raise SimulationError("last_chunk", f"'prefix' counts a chunk's first splats: {why}")
+        box: dict = {}
+
+        def values() -> np.ndarray:
+            if not box:
+                box["value"] = self.splat_values(self.utility, t, held)
+            return box["value"]
+
+        return values
+
     def splat_order(self, t: int, cat: Catalog, k: int, held: np.ndarray | None) -> np.ndarray:
         """Rows of unit ``k`` in descending predicted value of its form by the order utility (stable:
         ties keep the bundle's order)."""
