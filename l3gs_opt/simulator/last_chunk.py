@@ -33,7 +33,9 @@ __all__ = ["LAST_CHUNKS", "MAX_GRID", "LastChunkPlan", "plan_last_chunk"]
 
 #: ``whole``: the paper's model (only complete chunks count); ``prefix``: :func:`plan_last_chunk`.
 LAST_CHUNKS = ("whole", "prefix")
-#: Most steps of the byte grid of :func:`plan_last_chunk` (its work is objects^2 x layers x steps).
+#: Most steps of the byte grid of :func:`plan_last_chunk`. Its work is objects^2 x layers x steps:
+#: 0.16 s for a slot of 14 objects, 4 layers and this many steps, 5 ms at 6,000 steps (the paper's
+#: 11.8 Mbit/s in 248-byte records), on our 2-core machine; the rooms measured need a few hundred.
 MAX_GRID = 100_000
 #: A partial plan must beat the best whole-chunk plan by this relative margin to be chosen (a tie
 #: keeps the whole chunks: a partial commits the next slot's first bytes to the rest of its chunk).
@@ -185,8 +187,8 @@ def plan_last_chunk(cost: np.ndarray, utility: np.ndarray, held: np.ndarray, emp
     for j in range(J):
         if not partials[j]:
             continue
-        # Exactly c steps for the others: the partial gets exactly the bytes left, which matters
-        # when its first splats are worth more than all of them (signed values).
+        # The others use exactly c steps, so the partial gets exactly the bytes left: with signed
+        # splat values a longer prefix may be worth less, so "at most c" would misprice it.
         others = _table(options[:j] + options[j + 1:], cap, exact=True)
         for k, l in partials[j]:
             w, v = options[j][k]
