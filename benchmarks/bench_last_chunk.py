@@ -120,20 +120,22 @@ def report(recs: list[dict], out: Path) -> None:
                              f"{np.mean([r['ssim_mean'] for r in rs]):.4f} | {np.mean([r['first5'] for r in rs]):.4f} "
                              f"| {np.mean([r['first10'] for r in rs]):.4f} |")
     lines.append("")
-    lines.append("Over every scene, path and window (mean of the runs; the change against the same method with "
-                 "whole chunks):")
+    lines.append("Per utility, over every scene, path and window (mean of the runs; the change against the same "
+                 "method with whole chunks):")
     lines.append("")
-    lines.append("| method | runs | SSIM (60 s) | first 5 s | first 10 s |")
-    lines.append("|---|---|---|---|---|")
-    means = {}
-    for label in labels:
-        rs = [r for r in recs if r["label"] == label]
-        if rs:
-            means[label] = tuple(float(np.mean([r[k] for r in rs])) for k in ("ssim_mean", "first5", "first10"))
-    for label, m in means.items():
-        ref = means.get(label.replace(" prefix", "")) if label.endswith(" prefix") else None
-        cells = [f"{v:.4f}" + (f" ({100 * (v / r - 1):+.1f}%)" if ref else "") for v, r in zip(m, ref or m)]
-        lines.append(f"| {label} | {sum(1 for r in recs if r['label'] == label)} | {' | '.join(cells)} |")
+    lines.append("| utility | method | runs | SSIM (60 s) | first 5 s | first 10 s |")
+    lines.append("|---|---|---|---|---|---|")
+    for utility in sorted({r["utility"] for r in recs}):
+        means, counts = {}, {}
+        for label in labels:
+            rs = [r for r in recs if r["label"] == label and r["utility"] == utility]
+            if rs:
+                means[label] = tuple(float(np.mean([r[k] for r in rs])) for k in ("ssim_mean", "first5", "first10"))
+                counts[label] = len(rs)
+        for label, m in means.items():
+            ref = means.get(label.replace(" prefix", "")) if label.endswith(" prefix") else None
+            cells = [f"{v:.4f}" + (f" ({100 * (v / r - 1):+.1f}%)" if ref else "") for v, r in zip(m, ref or m)]
+            lines.append(f"| {utility} | {label} | {counts[label]} | {' | '.join(cells)} |")
     machines = sorted({(r["machine"]["cpu"], r["machine"]["cores"]) for r in recs})
     lines.append("")
     lines.append("Machine: " + "; ".join(f"{cpu}, {cores} cores" for cpu, cores in machines) +
