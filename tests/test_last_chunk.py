@@ -19,12 +19,9 @@ import l3gs_opt.simulator.last_chunk as last_chunk
 from l3gs_opt.checks import ArgumentError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.methods import solve
-from l3gs_opt.scene.bundle import write_bundle
-from l3gs_opt.scene.procedural import make_scene
 from l3gs_opt.simulator.last_chunk import plan_last_chunk
 from l3gs_opt.simulator.simulation import SimConfig, Simulation, SimulationError
-from l3gs_opt.traces.poses import synthetic_poses, write_pose_log
-from cli_helpers import one_error_line
+from cli_helpers import one_error_line, tiny_sort_bundle
 
 REL = 1e-9
 
@@ -139,25 +136,16 @@ def test_a_coarse_grid_still_fits_the_bytes(s):
 
 
 # -- in the simulator ---------------------------------------------------------------------------
-SIZES = (600, 1200, 2400)
-
-
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    root = tmp_path_factory.mktemp("lastchunk")
-    teacher = make_scene(3000, objects=3, sh_degree=1, seed=0)
-    order = np.random.default_rng(0).permutation(teacher.num_splats)
-    bounds = (0, *SIZES)
-    write_bundle(root / "sort", [teacher.subset(order[bounds[i]:bounds[i + 1]]) for i in range(len(SIZES))],
-                 variant="sort")
-    log = write_pose_log(synthetic_poses("orbit", seconds=4, rate_hz=30, seed=0), root / "viewer.log")
-    return {"root": root, "teacher": teacher, "log": log}
+    w = tiny_sort_bundle(tmp_path_factory.mktemp("lastchunk"), "sort")
+    return {**w, "teacher": w["scene"]}
 
 
 def _sim(world, bandwidth, **kw):
     config = SimConfig(width=64, height=48, samples_per_slot=1, viewport="oracle", bandwidth_predictor="oracle",
                        utility="visibility", **kw)
-    return Simulation(world["root"] / "sort", world["log"], bandwidth, config=config, reference=world["teacher"])
+    return Simulation(world["bundle"], world["log"], bandwidth, config=config, reference=world["teacher"])
 
 
 @pytest.mark.parametrize("splat_order", ["method", "stored"])
@@ -199,10 +187,10 @@ def test_bad_last_chunk_settings(world, capsys):
             sim.run(method, solver=solver)
     for kw in (dict(utility_mode="table", utility="eq1"),):
         with pytest.raises(SimulationError, match=r"^last_chunk: 'prefix' counts a chunk's first splats"):
-            Simulation(world["root"] / "sort", world["log"], [5000],
+            Simulation(world["bundle"], world["log"], [5000],
                        config=SimConfig(width=64, height=48, samples_per_slot=1, last_chunk="prefix", **kw),
                        reference=world["teacher"]).run("l3gs")
-    line = one_error_line(capsys, "simulate", world["root"] / "sort", "--trace", "lumos-throughput-mid-11",
+    line = one_error_line(capsys, "simulate", world["bundle"], "--trace", "lumos-throughput-mid-11",
                           "--path", world["log"], "--method", "sort", "--last-chunk", "prefix", "--slots", "2",
                           "--width", "32", "--height", "24")
     assert line.startswith("error: --last-chunk: 'prefix' changes the per-slot MCKP of l3gs and l3gs-noseg"), line
