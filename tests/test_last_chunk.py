@@ -200,6 +200,8 @@ def test_plan_last_chunk_refuses_bad_arguments():
     ok = dict(cost=[[4, 4]], utility=[[1.0, 0.5]], held=np.zeros((1, 2), bool), empty=np.zeros((1, 2), bool),
               capacity=6, prefix=lambda unit: np.arange(5.0), bytes_per_splat=[[1, 1]])
     assert plan_last_chunk(**ok).partial is not None
+    as_lists = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in ok.items()}
+    assert plan_last_chunk(**as_lists) == plan_last_chunk(**ok)   # plain lists work as arrays do
     for change, match in ((dict(cost=[[4, 4, 4]]), r"^utility: has shape \(1, 2\), expected \[J, L\] = \(1, 3\)"),
                           (dict(utility=[[1.0, float("nan")]]), r"^utility: must be finite"),
                           (dict(cost=[[0, 4]]), r"^cost: must be whole bytes >= 1"),

@@ -123,8 +123,9 @@ def _checked(cost, utility, held, empty, capacity, prefix, bytes_per_splat):
     check_count("capacity", capacity, low=0, high=2**62)
     if not callable(prefix):
         raise ArgumentError("prefix", f"{shown(prefix)}: must be a function (j, l) -> values of the first n splats")
-    return (np.where(solid, arrays["cost"], 1).astype(np.int64), np.where(solid, arrays["bytes_per_splat"], 1)
-            .astype(np.int64), arrays["utility"])
+    return (np.where(solid, arrays["cost"], 1).astype(np.int64),
+            np.where(solid, arrays["bytes_per_splat"], 1).astype(np.int64), arrays["utility"], masks["held"],
+            masks["empty"])
 
 
 def plan_last_chunk(cost: np.ndarray, utility: np.ndarray, held: np.ndarray, empty: np.ndarray,
@@ -156,9 +157,10 @@ def plan_last_chunk(cost: np.ndarray, utility: np.ndarray, held: np.ndarray, emp
         Arrays not all ``[J, L]``, a non-finite utility, a cost or splat size below 1 byte where
         a layer is not empty, a negative or non-integer capacity (naming the argument).
     """
-    cost, bytes_per_splat, utility = _checked(cost, utility, held, empty, capacity, prefix, bytes_per_splat)
+    cost, bytes_per_splat, utility, held, empty = _checked(cost, utility, held, empty, capacity, prefix,
+                                                           bytes_per_splat)
     J, L = cost.shape
-    levels = np.cumprod(np.asarray(held, bool) | np.asarray(empty, bool), axis=1).sum(axis=1)
+    levels = np.cumprod(held | empty, axis=1).sum(axis=1)
     free = [(j, l) for j in range(J) for l in range(int(levels[j]), L) if not empty[j, l]]
     capacity = int(capacity)
     if capacity <= 0 or not free:

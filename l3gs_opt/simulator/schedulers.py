@@ -273,15 +273,15 @@ class SlotSolverScheduler:
         plan = plan_last_chunk(view.cost, np.where(view.empty, 0.0, view.utility), view.instance_held(), view.empty,
                                view.available_bytes, view.prefix, view.bytes_per_splat)
         out = order_requests(view, plan.picks, fill=False)
-        more = [order_requests(view, [*out, plan.partial], fill=False)] if plan.partial is not None else []
-        if self.fill:   # (the partial last of the slot's own requests: its bytes end inside it)
-            more.append(order_requests(view, [*out, *(more[0] if more else [])], fill=True))
-        seen = set(out)
-        for group in more:
-            for u in group:
-                if u not in seen:
-                    seen.add(u)
-                    out.append(u)
+
+        def then(units: list[tuple[int, ...]]) -> None:   # append what is not requested yet, in order
+            seen = set(out)
+            out.extend(u for u in units if u not in seen)
+
+        if plan.partial is not None:   # last of the slot's own requests: the slot's bytes end inside it
+            then(order_requests(view, [*out, plan.partial], fill=False))
+        if self.fill:
+            then(order_requests(view, out, fill=True))
         return out
 
 
