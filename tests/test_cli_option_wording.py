@@ -61,6 +61,8 @@ def test_simulate_fetch_and_tables_name_the_option(capsys, world, tmp_path):
              "--method", "sort", "--out", tmp_path / "f")
     assert one_error_line(capsys, *fetch, "--retry-s", "-7").startswith("error: --retry-s: -7.0: ")
     assert one_error_line(capsys, *fetch, "--width", "-7").startswith("error: --width: -7: ")
+    assert one_error_line(capsys, *fetch, "--catalogue", "tables", "--last-chunk", "prefix").startswith(
+        "error: --last-chunk: 'prefix' counts a chunk's first splats: ")
     export = tmp_path / "exp"
     assert run_cli(capsys, "bundle", "export", world["bundle"], "--out", export)[0] == 0
     assert one_error_line(capsys, "bundle", "tables", export, "--fov", "0").startswith("error: --fov = 0.0: ")

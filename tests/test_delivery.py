@@ -5,6 +5,7 @@ run whose requests equal the simulator's given the same measured bytes."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import hashlib
 import json
 import socket
@@ -397,17 +398,18 @@ def test_unit_chunks_cover_the_catalogue(world):
         assert sorted(c.index for u in units for c in u) == [c.index for c in index.chunks if c.bytes]
 
 
-@pytest.mark.parametrize("carry", ["started", "head"])
-def test_fetch_matches_simulate_given_the_same_bytes(world, tmp_path, carry):
+@pytest.mark.parametrize("carry, last_chunk", [("started", "whole"), ("head", "whole"), ("started", "prefix")])
+def test_fetch_matches_simulate_given_the_same_bytes(world, tmp_path, carry, last_chunk):
     """A 3-slot fetch over a paced loopback link, then the simulator driven by the bytes the fetch
     measured: the same requests, completions and in-flight units in every slot (under either rule
-    for what a cut keeps on the wire)."""
+    for what a cut keeps on the wire, and with the per-slot plan that counts a last chunk's first
+    splats, which arrive in the file's order)."""
     from l3gs_opt.simulator.client import Client, drive
     from l3gs_opt.simulator.simulation import SimConfig, Simulation
 
     trace_file = tmp_path / "trace.txt"
     trace_file.write_text("\n".join(["0.48", "0.24", "0.4"]) + "\n")     # Mbit/s: 60, 30, 50 kB per s
-    config = SimConfig(width=32, height=24, samples_per_slot=1, carry=carry)
+    config = SimConfig(width=32, height=24, samples_per_slot=1, carry=carry, last_chunk=last_chunk)
     out = tmp_path / "out"
     with start_server(world["single"], trace=str(trace_file), shape_anonymous=False) as h:
         result = fetch(h.url, str(trace_file), world["log"], "l3gs", out, slots=3, config=config)
@@ -423,7 +425,7 @@ def test_fetch_matches_simulate_given_the_same_bytes(world, tmp_path, carry):
     for got, want, rec in zip(measured, (60_000, 30_000, 50_000), recs):
         assert got <= want * 1.05 + 2048 + rec["fetch"]["cut_late_s"] * 60_000, (got, want, rec["fetch"])
     sim = Simulation(stream_bundle(read_stream(world["single"])), world["log"], [60_000, 30_000, 50_000],
-                     config=config)
+                     config=dataclasses.replace(config, splat_order="stored"))   # as fetch receives chunks
     client = Client(sim, sim.spec("l3gs"))
     drive([client], measured)
     for mine, theirs in zip(recs, client.records):
@@ -449,6 +451,11 @@ def test_fetch_errors(world, tmp_path):
         port = s.getsockname()[1]
     with pytest.raises(FetchError, match="url"):
         fetch(f"http://127.0.0.1:{port}", "lumos-throughput-mid-11", world["log"], "l3gs", tmp_path, slots=1)
+    from l3gs_opt.simulator.simulation import SimConfig
+
+    with pytest.raises(FetchError, match="^last_chunk: 'prefix' counts a chunk's first splats: the 'tables'"):
+        fetch(f"http://127.0.0.1:{port}", "lumos-throughput-mid-11", world["log"], "l3gs", tmp_path, slots=1,
+              catalogue="tables", config=SimConfig(last_chunk="prefix"))
 
 
 def test_fetch_resumes_the_unit_in_flight(world, tmp_path, monkeypatch):

@@ -25,7 +25,8 @@ def _cmd_fetch(args: argparse.Namespace) -> int:
     rate = viewer_path_rate(args.path_rate, args.path_format)
     config = SimConfig(slot_s=args.slot_s, budget=args.budget, width=args.width, height=args.height,
                        fov_deg=args.fov, samples_per_slot=args.samples_per_slot, viewport=args.viewport,
-                       bandwidth_predictor=args.bandwidth_predictor, utility=args.utility, carry=args.carry)
+                       bandwidth_predictor=args.bandwidth_predictor, utility=args.utility, carry=args.carry,
+                       last_chunk=args.last_chunk)
     mapping = Z_UP_MAPPING if args.up == "z" else PoseMapping()
     poses = load_viewer_path(args.path, args.path_format, mapping=mapping, rate_hz=rate)
     result = fetch(args.url, args.trace, poses, args.method, args.out, slots=args.slots, resume=args.resume,
@@ -100,6 +101,9 @@ def register(subparsers) -> None:
     p.add_argument("--carry", default="started", choices=["started", "head"],
                    help="at a slot's cut: abort a request with no byte yet (default), or keep the first one open "
                         "(as simulate --carry)")
+    p.add_argument("--last-chunk", default="whole", choices=["whole", "prefix"],
+                   help="as simulate --last-chunk (l3gs and l3gs-noseg with the full catalogue): also count the first "
+                        "splats of the chunk a slot's bytes end inside; they arrive in the file's order")
     p.add_argument("--viewport", default="lr", choices=["lr", "last", "oracle"])
     p.add_argument("--bandwidth-predictor", default="harmonic", choices=["harmonic", "last", "oracle"])
     p.add_argument("--utility", default="eq1", metavar="NAME")

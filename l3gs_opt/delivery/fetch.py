@@ -547,6 +547,10 @@ def fetch(url: str, trace, poses, method: str, out_dir=None, *, slots: int = 60,
     if catalogue not in CATALOGUES:
         raise FetchError("catalogue", f"{catalogue!r} is not one of {', '.join(CATALOGUES)}")
     if catalogue == "tables":
+        if config.last_chunk != "whole":
+            # Refused before the catalogue is fetched, not at slot 0: the tables hold no splat's value.
+            raise FetchError("last_chunk", f"{config.last_chunk!r} counts a chunk's first splats: the 'tables' "
+                                           "catalogue values whole chunks only (use catalogue 'full')")
         config = dataclasses.replace(config, utility_mode="table")
     if resume and out_dir is None:
         raise FetchError("resume", "needs out_dir (the folder of the interrupted fetch)")
