@@ -151,6 +151,14 @@ def test_bad_input_names_field_and_index(change, pattern, field, index):
     assert isinstance(info.value, InstanceError)
 
 
+@pytest.mark.parametrize("name, value", [("object", [0, 0, 2**70, 1]), ("group", [0, 1, -2**70, 2])])
+def test_labels_beyond_int64_are_named(name, value):
+    """numpy holds such a list as dtype object: the entry is named, not the dtype."""
+    fields = {k: v for k, v in base().items() if k in ("bandwidth", "object", "cost", "utility", "group")}
+    with pytest.raises(ItemInstanceError, match=rf"^{name}\[2\] = -?1180591620717411303424: must be an integer in 0\.\."):
+        ItemInstance(**{**fields, name: value})
+
+
 def test_missing_key_is_named():
     data = base()
     del data["cost"]

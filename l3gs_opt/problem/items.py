@@ -80,6 +80,11 @@ def _labels(value: Any, name: str, N: int) -> np.ndarray:
         out = np.zeros(0, dtype=np.int64)
         out.setflags(write=False)
         return out
+    if arr.dtype.kind == "O":
+        # numpy's answer to an int beyond int64 (or to a mix of numbers and other things): name the entry.
+        for idx, v in enumerate(arr):
+            if isinstance(v, int) and not isinstance(v, bool) and not 0 <= v <= _MAX_LABEL:
+                raise ItemInstanceError(name, f"= {_brief(v)}: must be an integer in 0..{_MAX_LABEL}", (idx,))
     if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
         raise ItemInstanceError(name, f"must hold integers, got dtype {arr.dtype}")
     if arr.dtype.kind == "f":
