@@ -28,7 +28,7 @@ REL = 1e-9
 
 @st.composite
 def slots(draw, signed=True, all_or_nothing=False):
-    J, L = draw(st.integers(1, 3)), draw(st.integers(1, 3))
+    J, L = draw(st.integers(1, 4)), draw(st.integers(1, 3))   # J = 4: two levels of _all_but_one
     bps = draw(st.sampled_from([1, 2, 3, 6]))
     splats = np.array(draw(st.lists(st.integers(1, 6), min_size=J * L, max_size=J * L))).reshape(J, L)
     per = np.array(draw(st.lists(st.sampled_from([bps, 2 * bps]), min_size=J * L, max_size=J * L))).reshape(J, L)
