@@ -155,7 +155,8 @@ def test_bad_input_names_field_and_index(change, pattern, field, index):
 def test_labels_beyond_int64_are_named(name, value):
     """numpy holds such a list as dtype object: the entry is named, not the dtype."""
     fields = {k: v for k, v in base().items() if k in ("bandwidth", "object", "cost", "utility", "group")}
-    with pytest.raises(ItemInstanceError, match=rf"^{name}\[2\] = -?1180591620717411303424: must be an integer in 0\.\."):
+    pattern = rf"^{name}\[2\] = -?1180591620717411303424: must be an integer in 0\.\."
+    with pytest.raises(ItemInstanceError, match=pattern):
         ItemInstance(**{**fields, name: value})
 
 
