@@ -10,6 +10,7 @@ where a scheduler has to choose.
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -140,7 +141,7 @@ def online_story(out_dir: Path, bundle_dir: Path, log: Path, teacher, mbps: floa
     results = {}
     for m, u, last in ONLINE_METHODS:
         label = (m if u == "eq1" else f"{m}[{u}]") + ("" if last == "whole" else f" {last}")
-        folder = label.replace(":", "-").replace("[", "-").replace("] ", "-").replace(" ", "-").rstrip("]")
+        folder = re.sub(r"[^\w.-]+", "-", label).strip("-")   # l3gs[visibility] prefix -> l3gs-visibility-prefix
         r = simulate(bundle_dir, log, bandwidth, m, config=dataclasses.replace(config, last_chunk=last),
                      reference=teacher, mapping=Z_UP_MAPPING, out_dir=out_dir / "online" / folder, utility=u)
         results[label] = r.summary
