@@ -6,6 +6,7 @@ Master LP (restricted to a pool of columns; a column is one slot's set of arrivi
     s.t. sum_{c in slot t} lam_c <= 1             (convexity; = 1 at a node that forces items into t)
          sum_c a_ic lam_c <= 1                    (at most once, dual mu[i])
          precedence rows (u, t) of Problem A      (dual pi[u,t]; added lazily when violated)
+         cover rows of the arrived-by knapsacks   (dual d[k]; added by the caller, :mod:`.covers`)
          lam >= 0
 
 Every master solve yields multipliers ``(mu, pi)``; :func:`~.lagrange.lagrangian_value` at them
@@ -26,7 +27,7 @@ import numpy as np
 
 from l3gs_opt.stop import expired
 
-from .lagrange import GapData, LagrangeValue, Multipliers, lagrangian_value, reduced_profits
+from .lagrange import Cover, GapData, LagrangeValue, Multipliers, lagrangian_value, reduced_profits
 
 __all__ = ["ColumnPool", "Master", "CgResult", "column_generation"]
 
@@ -113,7 +114,7 @@ class Master:
         self.clock = WallClock(self.h)
         self.inf = highspy.kHighsInf
         n, T = data.n, data.T
-        # Rows: once [0, n), convexity [n, n + T), precedence after.
+        # Rows: once [0, n), convexity [n, n + T), precedence and cover rows after.
         self.h.addRows(n + T, np.full(n + T, -self.inf), np.ones(n + T), 0, np.zeros(n + T, np.int32),
                        np.zeros(0, np.int32), np.zeros(0))
         self.rows: list[tuple[int, int]] = []
@@ -129,6 +130,13 @@ class Master:
         for t in range(T):
             self._add_raw(-1, [n + t], [1.0], self.big_m)
         self.row_art: list[int] = []
+        # Cover rows (globally valid: kept at every node, no artificial column needed since the
+        # artificial columns alone satisfy them): their covers, row indices, and membership [k, n].
+        self.covers: list[Cover] = []
+        self.cover_rows: list[int] = []
+        self._cover_keys: set[tuple[int, bytes]] = set()
+        self._cover_member = np.zeros((0, data.n), dtype=np.int64)
+        self._cover_slot = np.zeros(0, dtype=np.int64)
         self.allowed, self.forced, self.forced_by_slot = allowed, forced, {}
         self.add_rows(rows)
         self.focus(allowed, forced, time_limit_s)
@@ -212,6 +220,10 @@ class Master:
                 for (u, tt), r in self._rows_of.get(up, ()):
                     if tt >= t + d:
                         coef[r] = coef.get(r, 0.0) - 1.0
+        if self.covers:
+            hits = self._cover_member[:, items].sum(axis=1) * (self._cover_slot >= t)
+            for k in np.nonzero(hits)[0].tolist():
+                coef[self.cover_rows[k]] = float(hits[k])
         keys = [k for k, v in coef.items() if v != 0.0]
         return keys, [coef[k] for k in keys]
 
@@ -277,6 +289,47 @@ class Master:
             if u not in self.forced:
                 self.h.changeColBounds(self.row_art[-1], 0.0, 0.0)
 
+    @property
+    def cover_keys(self) -> set[tuple[int, bytes]]:
+        """``(slot, items.tobytes())`` of every cover row held."""
+        return self._cover_keys
+
+    def add_covers(self, covers: list[Cover]) -> None:
+        """Cover rows ``sum_{i in S} y[i,t] <= |S| - 1`` over the master's columns (a column of
+        slot s <= t has coefficient ``|its items & S|``); covers already held are skipped."""
+        new = []
+        for cov in covers:
+            key = (int(cov.slot), np.asarray(cov.items, dtype=np.int64).tobytes())
+            if key not in self._cover_keys:
+                self._cover_keys.add(key)
+                new.append(cov)
+        if not new:
+            return
+        n = self.data.n
+        member = np.zeros((len(new), n), dtype=np.int64)
+        for k, cov in enumerate(new):
+            member[k, cov.items] = 1
+        slot = np.asarray([cov.slot for cov in new], dtype=np.int64)
+        starts, idx, val = [], [], []
+        real = [(pos, c) for pos, c in enumerate(self.cols) if c >= 0]
+        per_row: list[list[tuple[int, float]]] = [[] for _ in new]
+        for pos, c in real:
+            hits = member[:, self.pool.items[c]].sum(axis=1) * (slot >= self.pool.slot[c])
+            for k in np.nonzero(hits)[0].tolist():
+                per_row[k].append((pos, float(hits[k])))
+        for entries in per_row:
+            starts.append(len(idx))
+            idx.extend(p for p, _ in entries)
+            val.extend(v for _, v in entries)
+        base = self.h.getNumRow()
+        m = len(new)
+        self.h.addRows(m, np.full(m, -self.inf), np.asarray([len(cov.items) - 1.0 for cov in new]), len(idx),
+                       np.asarray(starts, np.int32), np.asarray(idx, np.int32), np.asarray(val, np.float64))
+        self.covers.extend(new)
+        self.cover_rows.extend(range(base, base + m))
+        self._cover_member = np.vstack([self._cover_member, member])
+        self._cover_slot = np.r_[self._cover_slot, slot]
+
     # -- solving ---------------------------------------------------------------------------
     def solve(self) -> tuple[float, Multipliers, np.ndarray] | None:
         """Solve; (master value with the held constant, multipliers >= 0, lam per master column),
@@ -301,9 +354,10 @@ class Master:
         pi = np.zeros((data.n, data.T))
         for (u, t), r in self.row_index.items():
             pi[u, t] = max(0.0, dual[r])
+        cover = np.maximum(0.0, dual[np.asarray(self.cover_rows, dtype=np.int64)])
         value = self.data.constant - float(self.h.getInfo().objective_function_value)
         self.rho = dual[data.n:data.n + data.T]      # convexity duals (for reduced costs)
-        return value, Multipliers(mu, pi), lam
+        return value, Multipliers(mu, pi, cover, tuple(self.covers)), lam
 
     def xbar(self, lam: np.ndarray) -> np.ndarray:
         """``[n, T]``: the master solution in arrival terms (artificials contribute nothing)."""
@@ -383,8 +437,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
             red_master = np.where(allowed, red_master, -np.inf)
         points = [mult]
         if best_mult is not None and smoothing > 0:
-            points.insert(0, Multipliers(smoothing * best_mult.mu + (1 - smoothing) * mult.mu,
-                                         smoothing * best_mult.pi + (1 - smoothing) * mult.pi))
+            points.insert(0, best_mult.blend(mult, smoothing))
         added = []
         for point in points:
             lv = lagrangian_value(data, point, allowed=allowed, forced=forced, deadline=deadline)

@@ -18,7 +18,10 @@ solved exactly by the single-slot branch-and-bound (:func:`l3gs_opt.solvers._mck
 one option per row). ``L(mu, pi) = sum_t max(0, K_t(p~)) + sum_i mu[i]`` is an upper bound on the
 optimum for every ``mu, pi >= 0`` (plus the held chunks' constant utility); because each
 knapsack is solved in integers it is at least as tight as the LP relaxation at its optimal
-multipliers.
+multipliers. Cover rows of the arrived-by knapsacks (:class:`Cover`, ``sum_{i in S} sum_{s<=t}
+x[i,s] <= |S| - 1``) may be dualised too (multiplier ``d``): each lowers ``p~[i,s]`` by ``d`` for
+the chunks of S in slots ``s <= t`` and adds ``(|S| - 1) d`` to ``L``, so the bound stays one
+knapsack per slot (:mod:`.covers`).
 
 Options: ``availability="next_slot"`` shifts ``P`` by one slot, ``same_slot_layers=False`` sets
 ``d = 1``. The ``cumulative`` budget couples the slots, so Problem A has no per-slot knapsack:
@@ -44,7 +47,7 @@ from l3gs_opt.problem.presolve import presolve
 from .. import _mckp
 from . import pricing
 
-__all__ = ["ChunkItems", "GapData", "gap_data", "chunk_arrays", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
+__all__ = ["ChunkItems", "GapData", "gap_data", "chunk_arrays", "Cover", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
            "lagrangian_value", "PolyakStep", "subgradient", "lp_multipliers", "assignment_value", "assignment_feasible",
            "chunk_profits", "into_presolve_slots"]
 
@@ -240,20 +243,57 @@ def assignment_feasible(data: GapData, assign: np.ndarray, allowed: np.ndarray |
 
 # -- the Lagrangian ---------------------------------------------------------------------------
 
+@dataclass(frozen=True, eq=False)
+class Cover:
+    """A cover of the arrived-by knapsack of slot ``slot``: chunks ``items`` whose bytes exceed
+    those of slots ``0..slot`` together, so at most ``len(items) - 1`` of them arrive by then
+    (``sum_{i in items} sum_{s <= slot} x[i,s] <= len(items) - 1``; valid under per-slot budgets)."""
+
+    items: np.ndarray
+    slot: int
+
+
 @dataclass(eq=False)
 class Multipliers:
     """``mu`` [n] for at-most-once rows, ``pi`` [n, T] for precedence rows (row (u, t); 0 for
-    items without a lower layer). Both >= 0."""
+    items without a lower layer), ``cover`` [k] for the cover rows ``covers`` (none by default).
+    All >= 0."""
 
     mu: np.ndarray
     pi: np.ndarray
+    cover: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    covers: tuple[Cover, ...] = ()
 
     @classmethod
     def zeros(cls, data: GapData) -> "Multipliers":
         return cls(np.zeros(data.n), np.zeros((data.n, data.T)))
 
     def copy(self) -> "Multipliers":
-        return Multipliers(self.mu.copy(), self.pi.copy())
+        return Multipliers(self.mu.copy(), self.pi.copy(), self.cover.copy(), self.covers)
+
+    def blend(self, other: "Multipliers", weight: float) -> "Multipliers":
+        """``weight * self + (1 - weight) * other``. Cover rows are only ever appended, so one
+        list of covers is the start of the other; a row missing from one has multiplier 0 there."""
+        covers = self.covers if len(self.covers) >= len(other.covers) else other.covers
+        k = len(covers)
+        mine, theirs = np.zeros(k), np.zeros(k)
+        mine[:len(self.cover)] = self.cover
+        theirs[:len(other.cover)] = other.cover
+        return Multipliers(weight * self.mu + (1 - weight) * other.mu, weight * self.pi + (1 - weight) * other.pi,
+                           weight * mine + (1 - weight) * theirs, covers)
+
+    def cover_charge(self, data: GapData) -> np.ndarray:
+        """``[n, T]``: what the cover rows take from chunk i's reduced profit in slot s, the sum
+        of the multipliers of the covers that hold i and whose slot is s or later."""
+        per_slot = np.zeros((data.n, data.T))
+        for d, cov in zip(self.cover.tolist(), self.covers):
+            if d > 0:
+                per_slot[cov.items, cov.slot] += d
+        return np.flip(np.cumsum(np.flip(per_slot, axis=1), axis=1), axis=1)
+
+    def cover_constant(self) -> list[float]:
+        """The cover rows' right-hand sides times their multipliers (terms of the Lagrangian)."""
+        return [(len(cov.items) - 1) * d for d, cov in zip(self.cover.tolist(), self.covers) if d > 0]
 
 
 @dataclass(eq=False)
@@ -284,6 +324,8 @@ def reduced_profits(data: GapData, mult: Multipliers) -> np.ndarray:
         if data.strict:
             up = np.concatenate([up[:, 1:], np.zeros((up.shape[0], 1))], axis=1)
         red[has_up] += up
+    if mult.covers:
+        red -= mult.cover_charge(data)
     return np.where(data.allowed, red, -np.inf)
 
 
@@ -335,7 +377,8 @@ def lagrangian_value(data: GapData, mult: Multipliers, *, allowed: np.ndarray | 
     x = np.zeros((data.n, T), dtype=bool)
     slot_bound = np.zeros(T)
     exact = True
-    magnitude = float(mult.mu.sum())
+    covers = mult.cover_constant()
+    magnitude = float(mult.mu.sum()) + math.fsum(covers) + float(mult.cover.sum())
     by_slot: dict[int, list[int]] = {}
     for i, t in forced.items():
         by_slot.setdefault(t, []).append(i)
@@ -355,9 +398,10 @@ def lagrangian_value(data: GapData, mult: Multipliers, *, allowed: np.ndarray | 
         # Without forced items an empty slot is always possible: the slot's value is >= 0.
         slot_bound[t] = base + value if fixed else max(0.0, value)
         magnitude += float(np.abs(col[chosen]).sum()) + abs(base)
-    # Round-off: each p~ is a sum of at most T + 3 terms, each slot a sum of at most n terms.
-    slack = 4 * (data.T + data.n + 4) * _EPS * (magnitude + float(np.abs(data.profit).max(initial=0.0)))
-    bound = math.fsum([data.constant, *slot_bound.tolist(), *mult.mu.tolist()]) + slack
+    # Round-off: each p~ is a sum of at most T + 3 terms and a cover charge (a sum over the
+    # covers), each slot a sum of at most n terms.
+    slack = 4 * (data.T + data.n + len(mult.covers) + 4) * _EPS * (magnitude + float(np.abs(data.profit).max(initial=0.0)))
+    bound = math.fsum([data.constant, *slot_bound.tolist(), *mult.mu.tolist(), *covers]) + slack
     return LagrangeValue(bound, x, slot_bound, red, exact)
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from l3gs_opt.models.backends.highs import new_highs
 from l3gs_opt.models.backends.highs_race import race_mip
 
-from .lagrange import GapData, assignment_feasible, assignment_value, chunk_profits
+from .lagrange import Cover, GapData, assignment_feasible, assignment_value, chunk_profits
 
 __all__ = ["MIP_BOUND_SLACK", "improve_window", "window_sweep", "reduced_mip", "lp_neighbourhood"]
 
@@ -161,7 +161,7 @@ def window_sweep(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, widt
 
 
 def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.ndarray, *,
-                   sparse: bool) -> np.ndarray | None:
+                   sparse: bool, covers: Sequence[Cover] = ()) -> np.ndarray | None:
     """Columns ``x`` (binary, one per allowed pair; ``var[i,t]`` its index or -1) and Problem A's
     rows into HiGHS model ``h``.
 
@@ -170,6 +170,8 @@ def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.nda
     ``Y[u,s] <= Y[lo, last allowed slot <= s - d]`` per allowed pair (u, s): 2 non-zeros instead of
     the O(T) of ``sum_{s'<=s} x[u,s'] - sum_{s'<=s-d} x[lo,s'] <= 0``. Same feasible x (the
     substitution is exact); HiGHS's simplex runs on about a tenth of the non-zeros.
+    ``covers``: their rows ``sum_{i in S} sum_{s <= t} x[i,s] <= |S| - 1`` too (valid for every
+    schedule; :mod:`.covers`).
     """
     import highspy
 
@@ -184,6 +186,11 @@ def _add_problem_a(h, data: GapData, var: np.ndarray, ii: np.ndarray, tt: np.nda
         cols = var[:, t][var[:, t] >= 0]
         if len(cols) and int(data.cost[ii[cols]].sum()) > int(data.budget[t]):
             h.addRow(-inf, float(data.budget[t]), len(cols), cols.astype(np.int32), data.cost[ii[cols]].astype(float))
+    for cov in covers:
+        cols = var[cov.items, :cov.slot + 1]
+        cols = cols[cols >= 0]
+        if len(cols) > len(cov.items) - 1:
+            h.addRow(-inf, float(len(cov.items) - 1), len(cols), cols.astype(np.int32), np.ones(len(cols)))
     if not sparse:
         for i in range(n):
             cols = var[i][var[i] >= 0]
@@ -240,7 +247,7 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
                 start: np.ndarray | None = None, sparse: bool = True, highs_options: dict | None = None,
                 restart_if: Callable[[float], bool] | None = None,
                 stop: Callable[[], bool] | None = None, proof: bool = True,
-                seeds: Sequence[int] = (0,)) -> tuple[str, np.ndarray | None, float]:
+                seeds: Sequence[int] = (0,), covers: Sequence[Cover] = ()) -> tuple[str, np.ndarray | None, float]:
     """Problem A restricted to the pairs in ``mask`` (after reduced-cost fixing), solved by HiGHS
     with the objective cut off at ``incumbent``: only strictly better schedules are searched.
 
@@ -257,6 +264,7 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
     anyway) lets HiGHS use presolve rule 13, which :func:`new_highs` otherwise switches off.
     ``seeds``: one HiGHS run per seed, raced in threads (:func:`~l3gs_opt.models.backends.highs_race.race_mip`:
     they share schedules, the first to close ends all; the bound is the best of theirs).
+    ``covers``: cover rows of the arrived-by knapsacks added to the model (:func:`_add_problem_a`).
     """
     import highspy
 
@@ -278,7 +286,7 @@ def reduced_mip(data: GapData, mask: np.ndarray, incumbent: float, *, time_limit
         return h
 
     first = fresh()
-    ycol = _add_problem_a(first, data, var, ii, tt, sparse=sparse)
+    ycol = _add_problem_a(first, data, var, ii, tt, sparse=sparse, covers=covers)
     x0 = None
     if start is not None and (start < 0).sum() < n:
         on = np.nonzero(start >= 0)[0]

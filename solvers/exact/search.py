@@ -13,7 +13,8 @@ representation; the bounds, columns, LNS and repair live in their own modules be
    the knapsack fillings at the LP duals, priced by the exact single-slot knapsack solver and
    stabilised around the best multipliers. Every pricing round is a Lagrangian bound with the
    linking rows (at most once, precedence) dualised (:mod:`.lagrange`), valid whatever the LP
-   did; the answer carries the best of them.
+   did; the answer carries the best of them. Once it converges, rounds of cover cuts of the
+   arrived-by knapsacks (:mod:`.covers`) enter the master within the same time share.
 3. **Lagrangian-guided repair**: the LP solution, the master solution and the knapsack fillings
    are rounded into schedules; relaxation-induced neighbourhoods (chunks the LP / master holds
    wholly in one slot stay there or leave, the rest move freely: a small MIP,
@@ -72,6 +73,7 @@ from l3gs_opt.stop import expired
 
 from .clock import Clock
 from .colgen import ColumnPool, Master, column_generation
+from .covers import separate_covers
 from .sides import run_sides
 from .starts import run_starts
 from . import lagrange
@@ -124,6 +126,15 @@ MIP_MARGIN_S, MIP_MARGIN_PER_PAIR_S = 1.0, 5e-5
 #: at the root), and instances whose root column generation did not converge in its share, run
 #: ``mip`` only.
 BRANCHING = ("both", "mip", "price")
+#: Cover cuts of the arrived-by knapsacks (:mod:`.covers`): ``"off"``; ``"root"`` - rounds of
+#: them in the master once the root column generation converges, within its time share (the rows
+#: stay in the master at every node and go into HiGHS's reduced model); ``"nodes"`` - rounds at
+#: every branch-and-price node too. Off: on nine J=20 development instances ``"root"`` lowered
+#: the root bound (J=20 s4: 307,654.27 to 307,553.94 in 0.5 s, optimum 307,421.67) but proved 6
+#: of 9 within 60 s, in a median of 39.4 s (60 s for an unproven one), against 7 of 9 in 33.3 s
+#: without; ``"nodes"`` took
+#: 48.5 s on s4 against 37.7 s (benchmarks/results/exact.md, twenty-third session).
+COVER_CUTS = "off"
 #: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
 #: open nodes whose bounds fall in one band, the newest comes first (a dive). On T60-J20-s13 and
 #: s15 whole subtrees had one bound (fractional node masters worth the optimum); plain best-first
@@ -577,22 +588,27 @@ class _Search(Clock):
         # One master LP for the root and every node (moved between them by bound changes).
         self.master = Master(data, self.pool, self.rows, allowed=allowed0, forced={})
 
+        until = None if left is None else time.perf_counter() + (0.0 if big else COLGEN_SHARE * left)
+
         def price() -> None:
-            box["cg"] = column_generation(
+            cg = column_generation(
                 data, self.pool, self.rows, allowed=allowed0, forced={}, incumbent=self.z,
                 time_limit_s=None if left is None else (0.0 if big else COLGEN_SHARE * left),
                 max_iterations=1 if big else 100_000, stall_iterations=100_000, start=start_point,
                 stop=self.stop.is_set, master=self.master)
+            box["converged"] = cg.converged
+            box["cg"] = self.cover_rounds(cg, until) if COVER_CUTS != "off" and cg.converged else cg
 
         run_sides(price, beside, self.stop, name="exact-root-mip")
         self.root_cg = root = box["cg"]
+        self.root_converged = bool(box["converged"])
         if root.value is not (start_point[1] if start_point else None):
             self.certificates.append(root.value)
         self.bound = max(root.bound, self.z) if math.isfinite(root.bound) else self.z
         self.bound_kind = ("Lagrangian at the LP duals (per-slot knapsacks solved exactly; column generation skipped)"
                            if big else "Lagrangian (column-generation duals; per-slot knapsacks solved exactly)")
         self.details["root"] = {"bound": root.bound, "master_lp": root.master, "iterations": root.iterations,
-                                "converged": root.converged, "seconds": self.now(), "columns": len(self.pool),
+                                "converged": self.root_converged, "seconds": self.now(), "columns": len(self.pool),
                                 "precedence_rows": len(self.rows), "colgen_skipped": bool(big)}
         if beside is not None:
             self.take_mip("root_mip")
@@ -605,6 +621,39 @@ class _Search(Clock):
         self.try_incumbent(round_schedule(data, root.value.x.astype(float) + root.xbar, allowed0), allowed0, {})
         self.trace.append((self.now(), self.z, self.bound))
         self.details["root"]["repair"] = []
+
+    def cover_rounds(self, cg: Any, until: float | None, allowed: np.ndarray | None = None,
+                     forced: Mapping[int, int] | None = None, record: dict | None = None) -> Any:
+        """Rounds of cover cuts (:mod:`.covers`) once column generation has converged at the root
+        (or at a node: ``allowed``, ``forced``; its counts go to ``record``): the most violated
+        cover of each slot's arrived-by knapsack at the master solution, then column generation
+        again from the last multipliers, until no cover is violated, the gap is closed, or
+        ``until`` (``time.perf_counter()`` seconds). Returns the last round's result (its bound is
+        the best met: each round starts from the last one's)."""
+        allowed = self.allowed0 if allowed is None else allowed
+        forced = {} if forced is None else dict(forced)
+        root = record is None
+        if root:
+            record = self.details["covers"] = {"bound_before": cg.bound, "rounds": 0, "covers": 0, "converged": True}
+        while not (self.stop.is_set() or expired(until) or _closed(cg.bound, self.z)):
+            cuts = separate_covers(self.data, cg.xbar, self.master.cover_keys)
+            if not cuts:
+                break
+            self.master.add_covers(cuts)
+            nxt = column_generation(
+                self.data, self.pool, self.rows, allowed=allowed, forced=forced, incumbent=self.z,
+                time_limit_s=None if until is None else max(until - time.perf_counter(), 0.0),
+                max_iterations=100_000, stall_iterations=100_000, start_bound=cg.bound, start=(cg.mult, cg.value),
+                stop=self.stop.is_set, master=self.master)
+            record["rounds"] += 1
+            record["covers"] = len(self.master.covers)
+            record["converged"] = bool(nxt.converged)
+            cg = nxt
+            if not nxt.converged:
+                break
+        if root:
+            record.update(bound_after=cg.bound, seconds=self.now())
+        return cg
 
     def repair(self) -> None:
         """Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left."""
@@ -643,7 +692,7 @@ class _Search(Clock):
         # Column generation at every node is too slow where it is skipped at the root (large instances)
         # or did not converge there in its share (J=50: 2-3 real nodes in the 30 s after the root); the
         # second core then runs another HiGHS instead.
-        use_price = branching == "price" or (branching == "both" and not self.big and bool(self.root_cg.converged))
+        use_price = branching == "price" or (branching == "both" and not self.big and self.root_converged)
         # Alone, the MIP side races HiGHS runs on the cores; beside the price side it has one.
         self.new_mip_side(seeds=(0,) if use_price else mip_seeds())
         run_sides(self.price_side if use_price else None,
@@ -710,7 +759,8 @@ class _Search(Clock):
             z_before = zh
             outcome, cand, mip_bound = reduced_mip(data, mask, zh, time_limit_s=left, start=start,
                                                    restart_if=restart_if if may_restart else None,
-                                                   stop=stop.is_set, seeds=self.mip_seeds)
+                                                   stop=stop.is_set, seeds=self.mip_seeds,
+                                                   covers=tuple(self.master.covers))
             if cand is not None:   # (feasible in exact bytes and better than zh: reduced_mip checks)
                 self.found.append(cand)
                 zh, start = assignment_value(data, cand), cand
@@ -745,6 +795,9 @@ class _Search(Clock):
         def key(b: float) -> float:
             return -b if band == 0 else -math.floor(b / band)
 
+        node_covers = ({"rounds": 0, "covers": 0, "converged": True} if COVER_CUTS == "nodes" else None)
+        if node_covers is not None:
+            self.details["node_covers"] = node_covers
         if not _closed(self.bound, self.z):
             heap.append((key(self.bound), 0, self.bound, {}, self.allowed_root, self.root_cg))
         while heap and not stop.is_set() and not self.out_of_time() and (max_nodes is None or self.nodes < max_nodes):
@@ -762,6 +815,8 @@ class _Search(Clock):
                                        master=self.master)
                 if cg.infeasible:
                     continue
+                if COVER_CUTS == "nodes" and cg.converged:
+                    cg = self.cover_rounds(cg, self.deadline, mask, forced, record=node_covers)
                 node_bound = min(node_bound, cg.bound)
                 self.try_incumbent(round_schedule(data, cg.xbar, mask, forced=forced), mask, forced)
                 if (self.out_of_time() or stop.is_set()) and not _closed(node_bound, self.z):
