@@ -129,11 +129,12 @@ BRANCHING = ("both", "mip", "price")
 #: Cover cuts of the arrived-by knapsacks (:mod:`.covers`): ``"off"``; ``"root"`` - rounds of
 #: them in the master once the root column generation converges, within its time share (the rows
 #: stay in the master at every node and go into HiGHS's reduced model); ``"nodes"`` - rounds at
-#: every branch-and-price node too. Off: on nine J=20 development instances ``"root"`` lowered
-#: the root bound (J=20 s4: 307,654.27 to 307,553.94 in 0.5 s, optimum 307,421.67) but proved 6
-#: of 9 within 60 s, in a median of 39.4 s (60 s for an unproven one), against 7 of 9 in 33.3 s
-#: without; ``"nodes"`` took
-#: 48.5 s on s4 against 37.7 s (benchmarks/results/exact.md, twenty-third session).
+#: every branch-and-price node too. Off: on nine J=20 development instances ``"root"`` lowered the
+#: root bound on six (s4: 307,654.27 to 307,553.94, optimum 307,421.67) but did not shorten the
+#: proofs: 12 of 16 runs proved within 60 s with it and 12 of 16 without, s3 took 27.5-28.0 s
+#: against 18.8-19.0 s in both runs, and run-to-run noise (without covers s0 and s11 proved in
+#: one run and not in the other) was larger than any gain; ``"nodes"`` took 48.5 s on s4 against 37.7 s
+#: (benchmarks/results/cover_cuts_exact_ab.txt).
 COVER_CUTS = "off"
 #: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
 #: open nodes whose bounds fall in one band, the newest comes first (a dive). On T60-J20-s13 and
