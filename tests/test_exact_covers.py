@@ -215,3 +215,13 @@ def test_reduced_mip_with_cover_rows_keeps_the_optimum(seed: int) -> None:
     outcome, assign, bound = reduced_mip(data, data.allowed, -math.inf, time_limit_s=None, covers=covers)
     assert outcome == "optimal"
     assert abs(bound - ref) <= 1e-9 * max(1.0, abs(ref))
+
+
+def test_cover_keeps_its_items_sorted_distinct_and_read_only() -> None:
+    cov = Cover(np.asarray([2, 1, 2]), np.int64(1))
+    assert cov.items.tolist() == [1, 2] and cov.slot == 1 and isinstance(cov.slot, int)
+    with pytest.raises(ValueError):
+        cov.items[0] = 5
+    for items, slot in (([], 0), ([-1, 2], 0), ([1], -1)):
+        with pytest.raises(ValueError, match="Cover: items must be"):
+            Cover(np.asarray(items, dtype=np.int64), slot)

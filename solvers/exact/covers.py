@@ -8,8 +8,9 @@ of chunks with ``c(S) > C[t]`` gives the valid row ``sum_{i in S} y[i,t] <= |S| 
 S|`` in it, and its multiplier only lowers the reduced profits of S's chunks in slots ``0..t``, so
 the pricing stays one knapsack per slot (see :meth:`~.lagrange.Multipliers.cover_charge`).
 
-On the development instances of issue 23 (J=20, T=60) covers closed 23-60 % of the root's gap on
-three of six seeds and found nothing to cut on the other three (``benchmarks/results/exact.md``).
+``exact`` runs rounds of them when ``search.COVER_CUTS`` asks; it is off by default: on nine J=20
+development instances they lowered the root bound on six but did not shorten the proofs
+(``benchmarks/results/cover_cuts_exact_ab.txt``).
 """
 
 from __future__ import annotations

@@ -252,6 +252,16 @@ class Cover:
     items: np.ndarray
     slot: int
 
+    def __post_init__(self) -> None:
+        # Sorted, distinct and read-only: covers are told apart by (slot, items.tobytes()).
+        items = np.unique(np.asarray(self.items, dtype=np.int64))
+        if items.ndim != 1 or len(items) == 0 or items[0] < 0 or int(self.slot) < 0:
+            raise ValueError(f"Cover: items must be distinct chunk indices >= 0 and slot >= 0, got {self.items!r}, "
+                             f"{self.slot!r}")
+        items.setflags(write=False)
+        object.__setattr__(self, "items", items)
+        object.__setattr__(self, "slot", int(self.slot))
+
 
 @dataclass(eq=False)
 class Multipliers:
