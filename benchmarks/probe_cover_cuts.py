@@ -18,6 +18,9 @@ slack dropped first while it stays a cover); the round's violated covers are add
 ``exact``'s own converged root (:func:`l3gs_opt.solvers.exact.colgen.column_generation`).
 
     .venv/bin/python benchmarks/probe_cover_cuts.py --J 20 --seed 4 [--rounds 30] [--with-lower]
+
+Kept as the record of ``cover_cuts_probe_dev.txt``. The twenty-third session built the same cuts into
+``exact`` (``solvers/exact/covers.py``, ``search.COVER_CUTS``), with knapsack separation and exact's master.
 """
 
 from __future__ import annotations

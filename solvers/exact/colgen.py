@@ -134,7 +134,7 @@ class Master:
         # artificial columns alone satisfy them): their covers, row indices, and membership [k, n].
         self.covers: list[Cover] = []
         self.cover_rows: list[int] = []
-        self._cover_keys: set[tuple[int, bytes]] = set()
+        self.cover_keys: set[tuple[int, bytes]] = set()    # (slot, items.tobytes()) of each
         self._cover_member = np.zeros((0, data.n), dtype=np.int64)
         self._cover_slot = np.zeros(0, dtype=np.int64)
         self.allowed, self.forced, self.forced_by_slot = allowed, forced, {}
@@ -251,14 +251,7 @@ class Master:
         d = 1 if data.strict else 0
         # Row (u, t) over the master's columns: +1 where the column's slot is <= t and holds u,
         # -1 where its slot is <= t - d and holds lo(u) (artificial columns: never).
-        cols = np.asarray(self.cols, dtype=np.int64)
-        real = np.nonzero(cols >= 0)[0]
-        slots = np.full(len(cols), data.T + 1, dtype=np.int64)
-        slots[real] = np.asarray(self.pool.slot, dtype=np.int64)[cols[real]]
-        member = np.zeros((len(cols), data.n), dtype=np.int8)
-        if len(real):
-            sizes = [len(self.pool.items[c]) for c in cols[real]]
-            member[np.repeat(real, sizes), np.concatenate([self.pool.items[c] for c in cols[real]])] = 1
+        slots, member = self._column_members()
         uu = np.asarray([u for u, _ in rows], dtype=np.int64)
         tt = np.asarray([t for _, t in rows], dtype=np.int64)
         lo = data.lower[uu]
@@ -289,10 +282,19 @@ class Master:
             if u not in self.forced:
                 self.h.changeColBounds(self.row_art[-1], 0.0, 0.0)
 
-    @property
-    def cover_keys(self) -> set[tuple[int, bytes]]:
-        """``(slot, items.tobytes())`` of every cover row held."""
-        return self._cover_keys
+    def _column_members(self) -> tuple[np.ndarray, np.ndarray]:
+        """Slot [m] and item membership [m, n] (int8) of the master's m columns; an artificial
+        column has slot T + 1 (after every row's slot) and no items."""
+        data = self.data
+        cols = np.asarray(self.cols, dtype=np.int64)
+        real = np.nonzero(cols >= 0)[0]
+        slots = np.full(len(cols), data.T + 1, dtype=np.int64)
+        slots[real] = np.asarray(self.pool.slot, dtype=np.int64)[cols[real]]
+        member = np.zeros((len(cols), data.n), dtype=np.int8)
+        if len(real):
+            sizes = [len(self.pool.items[c]) for c in cols[real]]
+            member[np.repeat(real, sizes), np.concatenate([self.pool.items[c] for c in cols[real]])] = 1
+        return slots, member
 
     def add_covers(self, covers: list[Cover]) -> None:
         """Cover rows ``sum_{i in S} y[i,t] <= |S| - 1`` over the master's columns (a column of
@@ -300,8 +302,8 @@ class Master:
         new = []
         for cov in covers:
             key = (int(cov.slot), np.asarray(cov.items, dtype=np.int64).tobytes())
-            if key not in self._cover_keys:
-                self._cover_keys.add(key)
+            if key not in self.cover_keys:
+                self.cover_keys.add(key)
                 new.append(cov)
         if not new:
             return
@@ -310,17 +312,12 @@ class Master:
         for k, cov in enumerate(new):
             member[k, cov.items] = 1
         slot = np.asarray([cov.slot for cov in new], dtype=np.int64)
-        starts, idx, val = [], [], []
-        real = [(pos, c) for pos, c in enumerate(self.cols) if c >= 0]
-        per_row: list[list[tuple[int, float]]] = [[] for _ in new]
-        for pos, c in real:
-            hits = member[:, self.pool.items[c]].sum(axis=1) * (slot >= self.pool.slot[c])
-            for k in np.nonzero(hits)[0].tolist():
-                per_row[k].append((pos, float(hits[k])))
-        for entries in per_row:
-            starts.append(len(idx))
-            idx.extend(p for p, _ in entries)
-            val.extend(v for _, v in entries)
+        col_slots, col_member = self._column_members()
+        # [covers, columns]: chunks of S a column holds, where its slot is <= the cover's.
+        coef = (member @ col_member.T.astype(np.int64)) * (col_slots[None, :] <= slot[:, None])
+        r, c = np.nonzero(coef)
+        starts = np.searchsorted(r, np.arange(len(new)))
+        idx, val = c, coef[r, c].astype(np.float64)
         base = self.h.getNumRow()
         m = len(new)
         self.h.addRows(m, np.full(m, -self.inf), np.asarray([len(cov.items) - 1.0 for cov in new]), len(idx),
