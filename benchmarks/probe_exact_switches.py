@@ -4,7 +4,8 @@ module switches set, one line of results.
 ``--covers`` sets ``search.COVER_CUTS`` (off / root / nodes); ``--no-mip-covers`` keeps the cover
 rows out of HiGHS's reduced model (the master keeps them); ``--skip-root-improvement`` replaces
 the root's repair and window LNS with the fixing alone (what :meth:`_Search.improve_at_root` does
-after them); ``--start-from-proof`` starts the run from a proven optimum. Runs are meant to be made one after another on an otherwise idle machine.
+after them); ``--start-from-proof`` starts the run from a proven optimum; ``--root-primal`` sets
+``search.ROOT_PRIMAL`` (anneal / lns: the twenty-fourth session's A/B). Runs are meant to be made one after another on an otherwise idle machine.
 
     .venv/bin/python benchmarks/probe_exact_switches.py --J 20 --seed 4 --covers root
 """
@@ -34,6 +35,7 @@ def main(argv=None) -> int:
     ap.add_argument("--covers", choices=("off", "root", "nodes"), default="off")
     ap.add_argument("--no-mip-covers", action="store_true")
     ap.add_argument("--skip-root-improvement", action="store_true")
+    ap.add_argument("--root-primal", choices=("anneal", "lns"), default=search.ROOT_PRIMAL)
     ap.add_argument("--start-from-proof", type=float, default=None, metavar="SECONDS",
                     help="first prove the instance with default switches within SECONDS, then start the measured "
                          "run from that optimum (what the proof needs besides finding the schedule)")
@@ -50,6 +52,7 @@ def main(argv=None) -> int:
             return data.assignment(known), "optimum", {}
         search._start = start_at_optimum
     search.COVER_CUTS = args.covers
+    search.ROOT_PRIMAL = args.root_primal
     if args.no_mip_covers:
         plain = lns.reduced_mip
         search.reduced_mip = lambda *a, covers=(), **k: plain(*a, **k)
@@ -65,7 +68,8 @@ def main(argv=None) -> int:
     d = sol.details
     print(json.dumps({
         "instance": f"T60-J{args.J}-s{args.seed}", "covers": args.covers, "mip_covers": not args.no_mip_covers,
-        "skip_root_improvement": args.skip_root_improvement, "start_from_optimum": args.start_from_proof is not None,
+        "skip_root_improvement": args.skip_root_improvement, "root_primal": args.root_primal,
+        "after_anneal": None if "after_anneal" not in d else round(float(d["after_anneal"]), 2), "start_from_optimum": args.start_from_proof is not None,
         "status": sol.status.value,
         "objective": round(sol.objective, 2), "bound": round(sol.bound, 2),
         "seconds": round(time.perf_counter() - started, 1), "root_bound": round(float(d["root"]["bound"]), 2),

@@ -11,7 +11,7 @@ are accepted and ignored, and :func:`l3gs_opt.solve` warns when one is given awa
 Its ``kind`` says what it schedules: ``slot`` (one slot's MCKP only: ``bb``, ``dp``, ``greedy``,
 ``fptas:EPS``; they need ``slot`` unless the instance has one slot), ``horizon`` (the whole
 horizon only: ``exact``, ``rolling:*``, ``rolling-future:*``, ``mpc:H``, ``progressive``,
-``slope``, ``static``, ``link-dp``; they refuse a ``slot``) or ``either`` (``ilp``, ``lp``,
+``slope``, ``static``, ``link-dp``, ``anneal``; they refuse a ``slot``) or ``either`` (``ilp``, ``lp``,
 ``brute``).
 """
 
@@ -192,6 +192,16 @@ def _mpc(text: str) -> SolverFn:
     return run
 
 
+def _anneal(_param: str) -> SolverFn:
+    def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None, options: Any = None,
+            **_unused: Any) -> Solution:
+        from .exact.anneal import solve_anneal
+
+        return solve_anneal(instance, slot=slot, time_limit_s=time_limit_s, with_bound=_with_bound(options))
+
+    return run
+
+
 def _link_dp(_param: str) -> SolverFn:
     def run(instance: Any, *, slot: int | None = None, time_limit_s: float | None = None,
             **_unused: Any) -> Solution:
@@ -218,6 +228,7 @@ def _entries() -> dict[str, MethodEntry]:
         E("mpc:H", "horizon", ("backend",), _mpc, _mpc),
         *(E(n, "horizon", (), _order(n), None) for n in ("progressive", "slope", "static")),
         E("link-dp", "horizon", (), _link_dp, None),
+        E("anneal", "horizon", (), _anneal, None),
     ]
     return {e.name.split(":", 1)[0]: e for e in rows}
 

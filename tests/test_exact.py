@@ -111,10 +111,11 @@ def test_unconverged_root_leaves_the_branching_to_highs(monkeypatch) -> None:
 @pytest.mark.parametrize("band", [0.0, exact_module.BOUND_BAND, 1.0])
 def test_bound_band_orders_the_tree_and_nothing_else(monkeypatch, band: float) -> None:
     """BOUND_BAND only orders the open nodes (0: plain best-first; 1: one band, a depth-first
-    dive). With the primal moves off, so that the tree itself must find the optimum: whatever the
+    dive). With the primal moves off (the annealing too), so that the tree itself must find the optimum: whatever the
     width, a closed tree ends at the ILP optimum, and a run stopped after two nodes carries a
     bound no smaller than it (the nodes' own bounds, not their band)."""
     monkeypatch.setattr(exact_module, "BOUND_BAND", band)
+    monkeypatch.setattr(exact_module, "ROOT_PRIMAL", "lns")
     monkeypatch.setattr(exact_module._Search, "neighbourhood", lambda self, *a, **k: None)
     monkeypatch.setattr(exact_module._Search, "repair", lambda self: None)
     monkeypatch.setattr(exact_module, "window_sweep", lambda data, assign, allowed, **k: assign)
@@ -500,7 +501,7 @@ def test_lp_neighbourhood_bands_are_nested(seed: int) -> None:
 
 def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
     """With RESTART_SHRINK = 1 HiGHS is restarted at every improving schedule it finds (no start
-    heuristics, one-slot windows: the primal side leaves it some to find; the MIP side alone, so that
+    heuristics, no annealing, one-slot windows: the primal side leaves it some to find; the MIP side alone, so that
     no race with branch-and-price decides whether it gets to find one, and no MIP beside the root
     column generation finds them first): the answers still equal the core's ILP, and at least one
     run restarted."""
@@ -508,6 +509,7 @@ def test_restarting_the_reduced_mip_keeps_the_optimum(monkeypatch) -> None:
 
     monkeypatch.setattr(exact_mod, "RESTART_SHRINK", 1.0)
     monkeypatch.setattr(exact_mod, "ROOT_MIP", False)
+    monkeypatch.setattr(exact_mod, "ROOT_PRIMAL", "lns")
     outcomes = []
     for seed in range(16):
         inst = random_instance(np.random.default_rng(6000 + seed), T=10, J=8, L=3, tight=0.25)

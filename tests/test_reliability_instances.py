@@ -67,7 +67,7 @@ def files(tmp_path) -> dict[str, Path]:
 
 TINY = Instance("layered", bandwidth=[6, 3], cost=[[2, 3], [4, 1]], utility=np.arange(8.0).reshape(2, 2, 2) / 8)
 METHODS = ["ilp", "lp", "brute", "exact", "bb", "dp", "greedy", "fptas:0.1", "rolling:bb", "rolling-future:dp",
-           "mpc:2", "progressive", "slope", "static", "link-dp"]
+           "mpc:2", "progressive", "slope", "static", "link-dp", "anneal"]
 ITEM_METHODS = ["ilp", "lp", "brute", "bb", "dp", "greedy", "fptas:0.1", "rolling:bb", "mpc:2"]
 SINGLE = {"bb", "dp", "greedy", "fptas:0.1"}
 

@@ -40,6 +40,8 @@ EXACT_HORIZON = ("ilp", "exact", "link-dp", "brute")
 HEURISTIC_HORIZON = ("mpc:2", "progressive", "slope", "static",
                      *(f"{kind}:{s}" for kind in ("rolling", "rolling-future")
                        for s in ("bb", "dp", "greedy", "fptas:0.1", "ilp")))
+#: Heuristics of the per-slot budget only.
+PER_SLOT_HEURISTIC = ("anneal",)
 SLOT_EXACT = ("bb", "dp", "brute", "ilp")
 SLOT_HEURISTIC = ("greedy", "fptas:0.1")
 BOUNDS = ("lp",)
@@ -50,7 +52,7 @@ def _family(name: str) -> str:
 
 
 def test_every_method_family_is_covered():
-    covered = {_family(m) for m in (*EXACT_HORIZON, *HEURISTIC_HORIZON, *SLOT_EXACT, *SLOT_HEURISTIC, *BOUNDS)}
+    covered = {_family(m) for m in (*EXACT_HORIZON, *HEURISTIC_HORIZON, *PER_SLOT_HEURISTIC, *SLOT_EXACT, *SLOT_HEURISTIC, *BOUNDS)}
     assert covered == set(TABLE), set(TABLE) ^ covered
 
 
@@ -136,6 +138,16 @@ def test_link_dp_equals_brute_force(inst):
 
 
 @settings(max_examples=30, **SETTINGS)
+@given(signed_instances().filter(lambda i: i.options.budget == "per_slot"))
+def test_per_slot_heuristics_feasible_never_above_brute_force(inst):
+    best = solve(inst, "brute").objective
+    for method in PER_SLOT_HEURISTIC:
+        sol = solve(inst, method)
+        _check_heuristic(inst, sol, best, method)
+        assert trim_losing_layers(inst, sol.arrivals) == sol.arrivals, (method, sol.arrivals)
+
+
+@settings(max_examples=30, **SETTINGS)
 @given(signed_instances())
 def test_heuristics_feasible_never_above_brute_force(inst):
     best = solve(inst, "brute").objective
@@ -186,7 +198,7 @@ def test_seeded_tight_instances_every_method(options):
             sol = solve(inst, method, **kw)
             assert is_feasible(inst, sol.arrivals)
             assert math.isclose(sol.objective, best, abs_tol=TOL), (method, kw, sol.objective, best, inst.to_dict())
-        for method in HEURISTIC_HORIZON:
+        for method in HEURISTIC_HORIZON + (PER_SLOT_HEURISTIC if options.budget == "per_slot" else ()):
             _check_heuristic(inst, solve(inst, method), best, method)
         for slot in range(T):
             at_slot = solve(inst, "brute", slot=slot).objective

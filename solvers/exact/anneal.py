@@ -1,0 +1,193 @@
+"""Schedules of Problem A from chunk orders: a first-fit decoder and simulated annealing over orders.
+
+**Decoder.** Given an order of the chunks, each in turn goes to the first slot where it is allowed,
+its bytes fit and its lower layer has arrived (strictly before, with strict layers); its undecided
+lower layers are decoded first. A chunk is left out when its lower layer is, when it fits nowhere,
+or when it would earn less than 0 and no layer depends on it.
+
+**Why orders suffice** (non-negative profits, which is every instance without signed layer
+utilities): decode the chunks of any feasible schedule S by slot, lower layers first within a
+slot, then the chunks S leaves out. By induction each chunk of S lands in its slot in S or earlier:
+when it is decoded, the chunks placed in its S slot are some of those S puts there, so it fits.
+Profits ``P[i, t]`` never rise with t, so the decoded schedule is worth at least S
+(:func:`slot_order` builds that order; the tests check it against brute force). Every optimum is
+therefore the decoding of some order, and a search over orders loses nothing.
+
+**Search.** :func:`anneal_schedule` runs rounds of simulated annealing over orders (swap two
+positions or move one, mostly nearby; :mod:`._anneal_kernels`), each round from the best order so
+far, until its deadline. Moves re-decode only from the checkpoint before the first changed
+position until the decoder's state meets the old one again. It is a heuristic: its schedule is
+checked in exact bytes and valued in float64 from the data, and nothing here claims a bound.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from l3gs_opt.errors import SolveError
+from l3gs_opt.problem.evaluate import trim_losing_layers
+from l3gs_opt.problem.instance import Instance
+from l3gs_opt.problem.solution import Solution, Status, finish_solution
+
+from .lagrange import GapData, assignment_feasible, assignment_value, gap_data
+
+__all__ = ["first_fit", "slot_order", "anneal_schedule", "solve_anneal", "TEMP0_SHARE", "TEMP_FALL",
+           "MOVES_PER_CHUNK", "ROUNDS"]
+
+#: Starting temperature of a round, as a share of the mean most a chunk can earn (``max_t |P|``):
+#: about 300 utility units on the paper-scale instances, where a slot's utilities run to thousands.
+TEMP0_SHARE = 0.08
+#: Final temperature of a round = starting temperature / TEMP_FALL.
+TEMP_FALL = 300.0
+#: Moves of one round per chunk (a round of 80 chunks takes about a third of a second here).
+MOVES_PER_CHUNK = 4000
+#: Rounds of the ``anneal`` method when its time limit does not stop it first (reproducible).
+ROUNDS = 8
+#: With probability 0.7 a move's second position is at most this far from its first.
+WINDOW = 5
+
+
+def first_fit(data: GapData, order: np.ndarray) -> np.ndarray:
+    """The assignment [n] (slot or -1) the decoder makes of ``order`` (a permutation of the chunks).
+
+    Plain Python; the reference for the compiled decoder of :mod:`._anneal_kernels`.
+    """
+    n, T = data.n, data.T
+    assign = np.full(n, -2, dtype=np.int64)
+    load = [0] * T   # Python ints: exact bytes
+    for k0 in order:
+        chain, k = [], int(k0)
+        while k >= 0 and assign[k] == -2:
+            chain.append(k)
+            k = int(data.lower[k])
+        for k in reversed(chain):
+            lo = int(data.lower[k])
+            placed = -1
+            if lo < 0 or assign[lo] >= 0:
+                start = 0 if lo < 0 else int(assign[lo]) + (1 if data.strict else 0)
+                for t in range(start, T):
+                    if data.allowed[k, t] and load[t] + int(data.cost[k]) <= int(data.budget[t]):
+                        if data.profit[k, t] >= 0 or data.upper[k] >= 0:
+                            placed = t
+                        break
+            assign[k] = placed
+            if placed >= 0:
+                load[placed] += int(data.cost[k])
+    return assign
+
+
+def slot_order(data: GapData, assign: np.ndarray) -> np.ndarray:
+    """An order whose decoding puts every chunk of ``assign`` in its slot or earlier (so it is worth
+    at least as much when profits are non-negative): by slot, lower layers first, the chunks left
+    out last."""
+    slot = np.where(assign >= 0, assign, data.T)
+    return np.lexsort((data.item_l, slot)).astype(np.int64)
+
+
+def _kernels():
+    from . import _anneal_kernels
+
+    return _anneal_kernels
+
+
+def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float | None = None,
+                    rounds: int | None = None, seed: int = 0, moves: int | None = None) -> np.ndarray:
+    """The best schedule rounds of simulated annealing over chunk orders find, each round from the
+    best order so far: ``rounds`` rounds, or fewer when ``deadline`` (``time.perf_counter()``
+    seconds) passes first; at least one round runs.
+
+    Parameters
+    ----------
+    data : GapData
+        Problem A (per-slot budgets, bytes; profits in utility units).
+    start : int array [n] or None
+        A feasible assignment to start from (its :func:`slot_order`); None: chunks by profit per
+        byte in slot 0.
+    deadline, rounds : float or None, int or None
+        When to stop (at least one of them; None: no such limit).
+    seed : int
+        Seed of the moves (round r uses ``seed * 1000 + r``).
+    moves : int or None
+        Moves per round (default :data:`MOVES_PER_CHUNK` per chunk).
+
+    Returns
+    -------
+    int array [n]
+        A feasible assignment, never worth less than ``start`` (``start`` itself when no round
+        beats it).
+    """
+    if deadline is None and rounds is None:
+        raise SolveError("anneal_schedule: give a deadline or a number of rounds")
+    n = data.n
+    fallback = np.full(n, -1, dtype=np.int64) if start is None else np.asarray(start, dtype=np.int64)
+    if n == 0:
+        return fallback
+    k = _kernels()
+    if start is None:
+        order = np.argsort(-(data.profit[:, 0] / data.cost), kind="stable").astype(np.int64)
+    else:
+        order = slot_order(data, fallback)
+    scale = float(np.abs(data.profit).max(axis=1).mean())
+    temp0 = max(TEMP0_SHARE * scale, 1e-300)
+    temp1 = temp0 / TEMP_FALL
+    moves = MOVES_PER_CHUNK * n if moves is None else int(moves)
+    best, best_val = fallback, assignment_value(data, fallback)
+    budget = data.budget.astype(np.int64)
+    r = 0
+    while r == 0 or ((rounds is None or r < rounds) and (deadline is None or time.perf_counter() < deadline)):
+        order, _, assign = k.anneal(order, data.cost, data.profit, data.allowed, data.lower, data.upper,
+                                    bool(data.strict), budget, moves, temp0, temp1, WINDOW, seed * 1000 + r)
+        r += 1
+        # Valued again exactly from the data: the kernel's running sum is only its guide.
+        if assignment_feasible(data, assign):
+            value = assignment_value(data, assign)
+            if value > best_val:
+                best, best_val = assign.copy(), value
+    return best
+
+
+def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
+                 with_bound: bool = True, rounds: int = ROUNDS, seed: int = 0) -> Solution:
+    """The ``anneal`` method: Problems I/III with per-slot budgets, from the better of
+    ``rolling-future:bb`` and ``static``, by :func:`anneal_schedule` (``rounds`` rounds, or fewer
+    when ``time_limit_s`` seconds pass first). Status ``feasible``; the bound is the LP relaxation
+    (``with_bound=False``: none).
+
+    Raises
+    ------
+    SolveError
+        ``slot`` given, the separate representation or the cumulative budget.
+    """
+    from ..rolling import _bound
+    from .starts import run_starts
+
+    started = time.perf_counter()
+    if slot is not None:
+        raise SolveError("method 'anneal' schedules the whole horizon: slot does not apply (use 'bb' for one slot)")
+    if not instance.layered:
+        raise SolveError(f"method 'anneal' orders layered chunks; the separate representation (Problem "
+                         f"{instance.problem}) is not supported (use 'exact' or a heuristic)")
+    if instance.options.budget == "cumulative":
+        raise SolveError("method 'anneal' packs per-slot budgets; budget 'cumulative' is not supported (use 'exact' "
+                         "or 'link-dp')")
+    data = gap_data(instance)
+    deadline = None if time_limit_s is None else started + float(time_limit_s)
+    start, start_name, best = np.full(data.n, -1, dtype=np.int64), "empty", -np.inf
+    for name, sol in run_starts(("rolling-future:bb", "static"), instance, deadline):
+        cand = data.assignment(sol.arrivals)
+        value = assignment_value(data, cand)
+        if assignment_feasible(data, cand) and value > best:
+            start, start_name, best = cand, name, value
+    assign = anneal_schedule(data, start, deadline=deadline, rounds=rounds, seed=seed)
+    # A negative top layer the decoder placed as a step that no layer above repaid is cut off.
+    arrivals = trim_losing_layers(instance, data.arrivals(assign))
+    schedule_s = time.perf_counter() - started
+    bound, bound_s = _bound(instance, with_bound)
+    return finish_solution(instance, arrivals, problem=instance.problem, method="anneal",
+                           status=Status.FEASIBLE, bound=bound, runtime_s=time.perf_counter() - started,
+                           message="anneal: simulated annealing over chunk orders (a heuristic); bound is the LP "
+                                   "relaxation",
+                           details={"start": start_name, "start_value": best, "schedule_s": schedule_s,
+                                    "bound_s": bound_s})
