@@ -34,15 +34,16 @@ from l3gs_opt.problem.solution import Solution, Status, finish_solution
 from .lagrange import GapData, assignment_feasible, assignment_value, gap_data
 
 __all__ = ["first_fit", "slot_order", "anneal_schedule", "solve_anneal", "TEMP0_SHARE", "TEMP_FALL",
-           "MOVES_PER_CHUNK", "ROUNDS"]
+           "MOVES_PER_CHUNK", "MAX_MOVES", "ROUNDS"]
 
 #: Starting temperature of a round, as a share of the mean most a chunk can earn (``max_t |P|``):
 #: about 300 utility units on the paper-scale instances, where a slot's utilities run to thousands.
 TEMP0_SHARE = 0.08
 #: Final temperature of a round = starting temperature / TEMP_FALL.
 TEMP_FALL = 300.0
-#: Moves of one round per chunk (a round of 80 chunks takes about a third of a second here).
-MOVES_PER_CHUNK = 4000
+#: Moves of one round per chunk (a round of 80 chunks takes about a third of a second here), at most
+#: MAX_MOVES (a round of 800 chunks: about 6 s).
+MOVES_PER_CHUNK, MAX_MOVES = 4000, 1_000_000
 #: Rounds of the ``anneal`` method when its time limit does not stop it first (reproducible).
 ROUNDS = 8
 #: With probability 0.7 a move's second position is at most this far from its first.
@@ -110,7 +111,7 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     seed : int
         Seed of the moves (round r uses ``seed * 1000 + r``).
     moves : int or None
-        Moves per round (default :data:`MOVES_PER_CHUNK` per chunk).
+        Moves per round (default :data:`MOVES_PER_CHUNK` per chunk, at most :data:`MAX_MOVES`).
 
     Returns
     -------
@@ -132,7 +133,7 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     scale = float(np.abs(data.profit).max(axis=1).mean())
     temp0 = max(TEMP0_SHARE * scale, 1e-300)
     temp1 = temp0 / TEMP_FALL
-    moves = MOVES_PER_CHUNK * n if moves is None else int(moves)
+    moves = min(MOVES_PER_CHUNK * n, MAX_MOVES) if moves is None else int(moves)
     best, best_val = fallback, assignment_value(data, fallback)
     budget = data.budget.astype(np.int64)
     r = 0
