@@ -99,7 +99,9 @@ def report(args: argparse.Namespace) -> None:
              f"runs one after another ({recs[0]['finished_utc']} to {recs[-1]['finished_utc']}), load average "
              f"(1 min) before/after each run in `anneal_runs.jsonl`. Gap to the best bound known (certified, from "
              "the `exact` and `ilp` records) and, in brackets, to the best schedule known (any record under "
-             "`benchmarks/results/`, this run's included). `anneal` is a heuristic: its status is `feasible`.", "",
+             "`benchmarks/results/`, this run's included). `anneal` is a heuristic: its status is `feasible`. "
+             "`anneal`: its default 8 rounds; `anneal N s`: the same, stopped at N seconds (the start heuristics "
+             "included) when the rounds take longer. `rolling-future:bb` is its start.", "",
              "| instance | method | objective | gap to best bound | (to best known) | run time (s) |",
              "|---|---|---|---|---|---|"]
     per: dict[tuple[int, str], list[tuple[float, float]]] = {}

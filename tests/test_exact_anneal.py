@@ -73,7 +73,7 @@ def test_anneal_is_feasible_never_below_its_start_never_above_the_optimum(seed: 
     data = gap_data(inst)
     ref = solve_brute_force(inst).objective
     start = np.full(data.n, -1, dtype=np.int64)
-    out = anneal_schedule(data, start, deadline=0.0, seed=seed, moves=200)
+    out = anneal_schedule(data, start, rounds=1, seed=seed, moves=200)
     assert assignment_feasible(data, out)
     assert is_feasible(inst, data.arrivals(out))
     value = assignment_value(data, out)
@@ -92,7 +92,7 @@ def test_anneal_finds_the_optimum_of_small_instances() -> None:
         inst = random_instance(rng, T=4, J=6, L=2, tight=0.5)
         data = gap_data(inst)
         ref = solve(inst, "ilp").objective
-        out = anneal_schedule(data, None, deadline=time.perf_counter() + 0.05, seed=seed, moves=2000)
+        out = anneal_schedule(data, None, rounds=1, seed=seed, moves=2000)
         hits += assignment_value(data, out) >= ref - 1e-9 * max(1.0, ref)
     assert hits >= 18
 
@@ -115,7 +115,7 @@ def test_empty_and_start_kept() -> None:
     inst = random_instance(rng, T=2, J=2, L=2)
     data = gap_data(inst)
     best = data.assignment(solve_brute_force(inst).arrivals)
-    out = anneal_schedule(data, best, deadline=0.0, moves=10)
+    out = anneal_schedule(data, best, rounds=1, moves=10)
     assert assignment_value(data, out) >= assignment_value(data, best)
 
 
@@ -142,3 +142,19 @@ def test_the_anneal_method() -> None:
     separate = random_instance(rng, representation="separate", T=3, J=2, L=2)
     with pytest.raises(SolveError, match="separate representation"):
         solve(separate, "anneal")
+
+
+def test_a_deadline_sizes_the_rounds() -> None:
+    """A J=50 round of the default size takes about 2 s here; under a 0.5 s deadline the rounds are cut
+    to fit (the first one measures the speed), so the search ends near it (the margin is for a loaded
+    machine), and a deadline already passed runs nothing."""
+    from l3gs_opt.bench.suites import paper_spec
+
+    data = gap_data(paper_spec(50, 0).build())
+    start = np.full(data.n, -1, dtype=np.int64)
+    anneal_schedule(data, start, rounds=1, moves=10)   # compiled or loaded from the cache first
+    began = time.perf_counter()
+    out = anneal_schedule(data, start, deadline=began + 0.5)
+    assert time.perf_counter() - began < 0.5 + 1.0
+    assert assignment_feasible(data, out) and assignment_value(data, out) > 0
+    assert np.array_equal(anneal_schedule(data, start, deadline=time.perf_counter() - 1.0), start)

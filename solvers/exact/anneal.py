@@ -44,6 +44,9 @@ TEMP_FALL = 300.0
 #: Moves of one round per chunk (a round of 80 chunks takes about a third of a second here), at most
 #: MAX_MOVES (a round of 800 chunks: about 6 s).
 MOVES_PER_CHUNK, MAX_MOVES = 4000, 1_000_000
+#: Moves of the first round when a deadline is set (it measures the speed the later rounds are sized
+#: by, so that none runs past the deadline).
+CALIBRATION_MOVES = 20_000
 #: Rounds of the ``anneal`` method when its time limit does not stop it first (reproducible).
 ROUNDS = 8
 #: With probability 0.7 a move's second position is at most this far from its first.
@@ -97,7 +100,8 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
                     rounds: int | None = None, seed: int = 0, moves: int | None = None) -> np.ndarray:
     """The best schedule rounds of simulated annealing over chunk orders find, each round from the
     best order so far: ``rounds`` rounds, or fewer when ``deadline`` (``time.perf_counter()``
-    seconds) passes first; at least one round runs.
+    seconds) passes first. Under a deadline the first round is short (:data:`CALIBRATION_MOVES`) and
+    each later one is cut to the moves that fit the time left at the speed measured so far.
 
     Parameters
     ----------
@@ -107,11 +111,13 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
         A feasible assignment to start from (its :func:`slot_order`); None: chunks by profit per
         byte in slot 0.
     deadline, rounds : float or None, int or None
-        When to stop (at least one of them; None: no such limit).
+        When to stop (at least one of them; None: no such limit). A deadline already passed runs
+        nothing.
     seed : int
         Seed of the moves (round r uses ``seed * 1000 + r``).
     moves : int or None
-        Moves per round (default :data:`MOVES_PER_CHUNK` per chunk, at most :data:`MAX_MOVES`).
+        Moves per round (default :data:`MOVES_PER_CHUNK` per chunk, at most :data:`MAX_MOVES`); under
+        a deadline, fewer when they would not fit.
 
     Returns
     -------
@@ -136,10 +142,20 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     moves = min(MOVES_PER_CHUNK * n, MAX_MOVES) if moves is None else int(moves)
     best, best_val = fallback, assignment_value(data, fallback)
     budget = data.budget.astype(np.int64)
+    rate = None   # moves per second, measured by the rounds so far
     r = 0
-    while r == 0 or ((rounds is None or r < rounds) and (deadline is None or time.perf_counter() < deadline)):
+    while rounds is None or r < rounds:
+        size = moves
+        if deadline is not None:
+            left = deadline - time.perf_counter()
+            # A round fits the time left: the first one is short and measures the speed.
+            size = min(size, CALIBRATION_MOVES) if rate is None else min(size, int(rate * left))
+            if left <= 0 or size < CALIBRATION_MOVES // 10:
+                break
+        began = time.perf_counter()
         order, _, assign = k.anneal(order, data.cost, data.profit, data.allowed, data.lower, data.upper,
-                                    bool(data.strict), budget, moves, temp0, temp1, WINDOW, seed * 1000 + r)
+                                    bool(data.strict), budget, size, temp0, temp1, WINDOW, seed * 1000 + r)
+        rate = size / max(time.perf_counter() - began, 1e-9)
         r += 1
         # Valued again exactly from the data: the kernel's running sum is only its guide.
         if assignment_feasible(data, assign):
