@@ -171,7 +171,7 @@ def test_report_on_tiny_results(tmp_path):
 
 def test_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["bench", "--suite", "stiff", "--methods", "nonsense", "--out", str(tmp_path)]) == 2
-    assert "method 'nonsense' is not one of ilp, lp, bb" in capsys.readouterr().err
+    assert "method 'nonsense' is not one of ilp, lp, anneal, bb" in capsys.readouterr().err
     assert main(["bench", "--suite", "stiff", "--jobs", "-1", "--methods", "ilp/highs", "--out", str(tmp_path)]) == 2
     assert main(["report", str(tmp_path / "missing.jsonl"), "--out", str(tmp_path)]) == 2
     with pytest.raises(SystemExit) as info:
