@@ -50,7 +50,7 @@ def main(argv=None) -> int:
 
         def start_at_optimum(instance, data, heuristics, deadline):
             return data.assignment(known), "optimum", {}
-        search._start = start_at_optimum
+        search.best_start = start_at_optimum
     search.COVER_CUTS = args.covers
     search.ROOT_PRIMAL = args.root_primal
     if args.no_mip_covers:

@@ -178,7 +178,7 @@ def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: f
         ``slot`` given, the separate representation or the cumulative budget.
     """
     from ..rolling import _bound
-    from .starts import run_starts
+    from .starts import best_start
 
     started = time.perf_counter()
     if slot is not None:
@@ -191,12 +191,7 @@ def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: f
                          "or 'link-dp')")
     data = gap_data(instance)
     deadline = None if time_limit_s is None else started + float(time_limit_s)
-    start, start_name, best = np.full(data.n, -1, dtype=np.int64), "empty", -np.inf
-    for name, sol in run_starts(("rolling-future:bb", "static"), instance, deadline):
-        cand = data.assignment(sol.arrivals)
-        value = assignment_value(data, cand)
-        if assignment_feasible(data, cand) and value > best:
-            start, start_name, best = cand, name, value
+    start, start_name, _ = best_start(instance, data, ("rolling-future:bb", "static"), deadline)
     assign = anneal_schedule(data, start, deadline=deadline, rounds=rounds, seed=seed)
     # A negative top layer the decoder placed as a step that no layer above repaid is cut off.
     arrivals = trim_losing_layers(instance, data.arrivals(assign))
@@ -206,5 +201,5 @@ def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: f
                            status=Status.FEASIBLE, bound=bound, runtime_s=time.perf_counter() - started,
                            message="anneal: simulated annealing over chunk orders (a heuristic); bound is the LP "
                                    "relaxation",
-                           details={"start": start_name, "start_value": best, "schedule_s": schedule_s,
+                           details={"start": start_name, "start_value": assignment_value(data, start), "schedule_s": schedule_s,
                                     "bound_s": bound_s})

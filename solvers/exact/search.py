@@ -77,7 +77,7 @@ from .clock import Clock
 from .colgen import ColumnPool, Master, column_generation
 from .covers import separate_covers
 from .sides import run_sides
-from .starts import run_starts
+from .starts import best_start
 from .anneal import anneal_schedule
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
@@ -144,8 +144,9 @@ COVER_CUTS = "off"
 #: after the start heuristics, for ANNEAL_SHARE of the time limit (ANNEAL_ROUNDS rounds without a
 #: limit), and after the root only the fixing; ``"lns"`` - after the root, the level-keeping repair,
 #: the window LNS and the repair again (:meth:`_Search.improve_at_root`). ``"anneal"``: on J=20 the
-#: annealing reaches within 0.05 % of the optimum in 4 s (the optimum on s0, s2, s3), where the root's
-#: repair and LNS took 10-20 s to end further from it (exact.md, twenty-fourth session).
+#: annealing reaches within 0.05 % of the optimum in 4 s (the optimum on s2, s3, s5, s12), where the
+#: root's repair and LNS took 10-20 s to end further from it; seeds 0-9 proven 6 of 10 in 60 s against
+#: 5 of 10 (benchmarks/results/exact_anneal_ab.md).
 ROOT_PRIMAL = "anneal"
 ANNEAL_SHARE, ANNEAL_ROUNDS = 0.07, 12
 #: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
@@ -423,21 +424,6 @@ def _split_masks(data: GapData, mask: np.ndarray, i: int, t: int) -> tuple[np.nd
 
 # -- the solver ---------------------------------------------------------------------------------
 
-def _start(instance: Instance, data: GapData, heuristics: tuple[str, ...], deadline: float | None
-           ) -> tuple[np.ndarray, str, dict[str, float]]:
-    best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
-    best_val = assignment_value(data, best)
-    for name, sol in run_starts(heuristics, instance, deadline):
-        assign = data.assignment(sol.arrivals)
-        if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
-            continue
-        value = assignment_value(data, assign)
-        values[name] = value
-        if value > best_val:
-            best, best_name, best_val = assign, name, value
-    return best, best_name, values
-
-
 def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
                 heuristics: tuple[str, ...] | None = None, max_nodes: int | None = None, lns_width: int = 8,
                 branching: str = "both",
@@ -556,7 +542,7 @@ class _Search(Clock):
         if heuristics is None:
             heuristics = START_HEURISTICS + (("mpc:3",) if instance.J * instance.L <= MPC_MAX_CHUNKS else ())
         h_deadline = None if self.deadline is None else self.started + 0.2 * float(self.time_limit_s)
-        assign, start_name, start_values = (_start(instance, data, heuristics, h_deadline) if data.n else
+        assign, start_name, start_values = (best_start(instance, data, heuristics, h_deadline) if data.n else
                                             (np.full(0, -1, np.int64), "empty", {}))
         self.details["start"] = {"best": start_name, "values": start_values}
         self.assign = local_search(data, assign, self.allowed0, deadline=self.ls_deadline())

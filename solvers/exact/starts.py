@@ -9,11 +9,15 @@ from __future__ import annotations
 import time
 from typing import Iterable, Iterator
 
+import numpy as np
+
 from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import Solution
 
-__all__ = ["START_NAMES", "check_starts", "run_start", "run_starts"]
+from .lagrange import GapData, assignment_feasible, assignment_value
+
+__all__ = ["START_NAMES", "check_starts", "run_start", "run_starts", "best_start"]
 
 #: Every start heuristic ``exact``'s ``heuristics`` option may name.
 START_NAMES = ("rolling-future:bb", "slope", "rolling:bb", "static", "progressive", "mpc:3")
@@ -52,3 +56,20 @@ def run_starts(names: Iterable[str], instance: Instance, deadline: float | None)
         if left is not None and left <= 0:
             return
         yield name, run_start(name, instance, left)
+
+
+def best_start(instance: Instance, data: GapData, names: Iterable[str], deadline: float | None
+               ) -> tuple[np.ndarray, str, dict[str, float]]:
+    """The best feasible assignment of the start heuristics ``names`` (see :func:`run_starts`):
+    ``(assignment, its heuristic's name or "empty", every heuristic's value)``."""
+    best, best_name, values = np.full(data.n, -1, dtype=np.int64), "empty", {}
+    best_val = assignment_value(data, best)
+    for name, sol in run_starts(names, instance, deadline):
+        assign = data.assignment(sol.arrivals)
+        if not assignment_feasible(data, assign):   # never expected: heuristics are feasible
+            continue
+        value = assignment_value(data, assign)
+        values[name] = value
+        if value > best_val:
+            best, best_name, best_val = assign, name, value
+    return best, best_name, values
