@@ -639,3 +639,43 @@ def test_closed_needs_a_finite_bound() -> None:
     assert closed(5.0, 5.0) and closed(5.0 * (1 + 0.5 * exact_module.CLOSE_TOL), 5.0)
     assert not closed(5.0 * (1 + 10 * exact_module.CLOSE_TOL), 5.0)
     assert closed(-math.inf, 0.0)
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3), shortfall=st.sampled_from([1e-9, 1e-3, 1e-2]))
+def test_fixing_at_the_root_keeps_the_optimum_and_uses_every_certificate(seed: int, opt: int,
+                                                                        shortfall: float) -> None:
+    """After the root, fixing at a value below the optimum (the knapsack test with the tightest
+    certificate, the cheap test with every one) keeps every pair of the ILP optimum, and keeps no
+    pair that some certificate's cheap test drops."""
+    inst = random_instance(np.random.default_rng(seed), T=6, J=4, L=3, options=ACCEPTED[opt], tight=0.3)
+    ref = solve(inst, "ilp")
+    s = exact_module._Search(inst, started=0.0, time_limit_s=None, max_nodes=None, lns_width=3, branching="both")
+    s.start(())
+    if s.data.n == 0:
+        return
+    s.root()
+    z = ref.objective * (1 - shortfall) - 1e-12
+    mask = s.fixed_at(z, s.allowed0, exact=True)
+    opt_assign = s.data.assignment(ref.arrivals)
+    on = np.nonzero(opt_assign >= 0)[0]
+    assert mask[on, opt_assign[on]].all()
+    for lv in s.certificates:
+        assert not (mask & ~reduced_cost_fixing(s.data, lv, lv.bound, z, s.allowed0)).any()
+
+
+def test_after_the_annealing_no_lp_neighbourhood_and_no_mpc_start(monkeypatch) -> None:
+    """With ROOT_PRIMAL = "anneal" the root runs no LP neighbourhood MIP and the start heuristics
+    leave out ``mpc:3``; with "lns" both run (on an instance small enough for both)."""
+    inst = random_instance(np.random.default_rng(7), T=8, J=5, L=3, tight=0.3)
+    calls: list[int] = []
+    real = exact_module.lp_neighbourhood
+    monkeypatch.setattr(exact_module, "lp_neighbourhood", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for primal, expect in (("anneal", False), ("lns", True)):
+        monkeypatch.setattr(exact_module, "ROOT_PRIMAL", primal)
+        calls.clear()
+        sol = solve_exact(inst)
+        _check(inst, sol)
+        assert sol.status is Status.OPTIMAL
+        assert bool(calls) is expect
+        assert ("mpc:3" in sol.details["start"]["values"]) is expect
