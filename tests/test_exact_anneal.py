@@ -158,3 +158,32 @@ def test_a_deadline_sizes_the_rounds() -> None:
     assert time.perf_counter() - began < 0.5 + 1.0
     assert assignment_feasible(data, out) and assignment_value(data, out) > 0
     assert np.array_equal(anneal_schedule(data, start, deadline=time.perf_counter() - 1.0), start)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_patience_stops_after_rounds_that_find_nothing(monkeypatch, seed: int) -> None:
+    """With ``patience`` p (no deadline: every round has its full size and a fixed seed) the search
+    stops after p rounds in a row that found nothing better: its schedule is the one of the same
+    number of rounds without patience, and p rounds fewer are worth as much."""
+    from l3gs_opt.solvers.exact import anneal
+
+    inst = random_instance(np.random.default_rng(seed), T=8, J=6, L=3, tight=0.3)
+    data = gap_data(inst)
+    start = np.full(data.n, -1, dtype=np.int64)
+    calls = []
+    real = anneal._kernels()
+
+    class Counting:
+        def anneal(self, *a):
+            calls.append(1)
+            return real.anneal(*a)
+
+    monkeypatch.setattr(anneal, "_kernels", lambda: Counting())
+    out = anneal_schedule(data, start, rounds=60, moves=200, patience=2)
+    ran = len(calls)
+    assert 2 <= ran < 60
+    monkeypatch.setattr(anneal, "_kernels", lambda: real)
+    same = anneal_schedule(data, start, rounds=ran, moves=200)
+    assert np.array_equal(out, same)
+    assert assignment_value(data, anneal_schedule(data, start, rounds=ran - 2, moves=200)) == \
+        assignment_value(data, out)

@@ -97,7 +97,8 @@ def _kernels():
 
 
 def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float | None = None,
-                    rounds: int | None = None, seed: int = 0, moves: int | None = None) -> np.ndarray:
+                    rounds: int | None = None, seed: int = 0, moves: int | None = None,
+                    patience: int | None = None) -> np.ndarray:
     """The best schedule rounds of simulated annealing over chunk orders find, each round from the
     best order so far: ``rounds`` rounds, or fewer when ``deadline`` (``time.perf_counter()``
     seconds) passes first. Under a deadline the first round is short (:data:`CALIBRATION_MOVES`) and
@@ -118,6 +119,8 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     moves : int or None
         Moves per round (default :data:`MOVES_PER_CHUNK` per chunk, at most :data:`MAX_MOVES`); under
         a deadline, fewer when they would not fit.
+    patience : int or None
+        Stop once this many full rounds in a row have found nothing better (None: never).
 
     Returns
     -------
@@ -143,8 +146,11 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     best, best_val = fallback, assignment_value(data, fallback)
     budget = data.budget.astype(np.int64)
     rate = None   # moves per second, measured by the rounds so far
-    r = 0
-    while rounds is None or r < rounds:
+    if deadline is not None:   # a round of no moves: the compiled code is loaded before the speed is measured
+        k.anneal(order, data.cost, data.profit, data.allowed, data.lower, data.upper, bool(data.strict), budget,
+                 0, temp0, temp1, WINDOW, 0)
+    r = stale = 0
+    while (rounds is None or r < rounds) and (patience is None or stale < patience):
         size = moves
         if deadline is not None:
             left = deadline - time.perf_counter()
@@ -158,10 +164,13 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
         rate = size / max(time.perf_counter() - began, 1e-9)
         r += 1
         # Valued again exactly from the data: the kernel's running sum is only its guide.
+        better = False
         if assignment_feasible(data, assign):
             value = assignment_value(data, assign)
             if value > best_val:
-                best, best_val = assign.copy(), value
+                best, best_val, better = assign.copy(), value, True
+        # (the short first round under a deadline does not count against the patience)
+        stale = 0 if better else stale + (size >= moves)
     return best
 
 

@@ -141,14 +141,27 @@ BRANCHING = ("both", "mip", "price")
 COVER_CUTS = "off"
 #: The primal search at the root, on instances small enough for column generation (larger ones keep
 #: ``"lns"``): ``"anneal"`` - rounds of simulated annealing over chunk orders (:mod:`.anneal`) right
-#: after the start heuristics, for ANNEAL_SHARE of the time limit (ANNEAL_ROUNDS rounds without a
-#: limit), and after the root only the fixing; ``"lns"`` - after the root, the level-keeping repair,
-#: the window LNS and the repair again (:meth:`_Search.improve_at_root`). ``"anneal"``: on J=20 the
-#: annealing reaches within 0.05 % of the optimum in 4 s (the optimum on s2, s3, s5, s12), where the
+#: after the start heuristics (without ``mpc:3``), for ANNEAL_SHARE of the time limit (ANNEAL_ROUNDS
+#: rounds without a limit); no LP neighbourhood MIPs, and after the root only the fixing; ``"lns"`` -
+#: ``mpc:3`` among the starts, the LP neighbourhoods after the LP and the root, then the level-keeping
+#: repair, the window LNS and the repair again (:meth:`_Search.improve_at_root`). ``"anneal"``: on J=20
+#: the annealing reaches within 0.05 % of the optimum in 4 s (the optimum on s2, s3, s5, s12), where the
 #: root's repair and LNS took 10-20 s to end further from it; seeds 0-9 proven 6 of 10 in 60 s against
-#: 5 of 10 (benchmarks/results/exact_anneal_ab.md).
+#: 5 of 10 (benchmarks/results/exact_anneal_ab.md). After it the two neighbourhoods gained on 2 of 28
+#: calls (J=20 seeds 0-13) and took about 5 s on most seeds; without them and ``mpc:3`` (with the
+#: patience and the fixing below) the nine J=20 seeds both arms proved took 4.5-13.0 s less each, s11
+#: lost its proof (26.8 s before), and seeds 0-9 proved 7 of 10 in a median of 19.9 s against 27.6 s
+#: (benchmarks/results/exact_lean_root_ab.md).
 ROOT_PRIMAL = "anneal"
 ANNEAL_SHARE, ANNEAL_ROUNDS = 0.07, 12
+#: The annealing stops early when this many rounds in a row find nothing better (most J=20 seeds
+#: reach their best in the first two rounds of about 0.35 s, from the fourteen runs of 4.2 s each).
+ANNEAL_PATIENCE = 4
+#: The LP neighbourhoods are left out after the annealing only where n * T is at most this (J=20:
+#: 4,800): at J=50 (12,000; the root column generation does not converge in its share and the gap
+#: is mostly the schedule) the run with them ended higher than two runs without on 6 of the 8
+#: pairs of the four open seeds (equal on 1; benchmarks/results/exact_lean_root_ab.md).
+LEAN_ROOT_MAX_PAIRS = 8_000
 #: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
 #: open nodes whose bounds fall in one band, the newest comes first (a dive). On T60-J20-s13 and
 #: s15 whole subtrees had one bound (fractional node masters worth the optimum); plain best-first
@@ -515,9 +528,9 @@ class _Search(Clock):
             self.pool.add_assignment(cand)
 
     def neighbourhood(self, x: np.ndarray, band: int = 0, share: float = NEIGHBOURHOOD_SHARE) -> None:
-        """The LP neighbourhood MIP around ``x`` (not after the annealing: :data:`ROOT_PRIMAL`)."""
+        """The LP neighbourhood MIP around ``x`` (not on small instances after the annealing: :attr:`lean`)."""
         left = self.left()
-        if (left is not None and left <= 0) or _closed(self.bound, self.z) or self.anneals:
+        if (left is not None and left <= 0) or _closed(self.bound, self.z) or self.lean:
             return
         cand = lp_neighbourhood(self.data, x, self.allowed0, self.z, time_limit_s=None if left is None else share * left,
                                 start=self.assign, band=band, seeds=mip_seeds())
@@ -560,7 +573,7 @@ class _Search(Clock):
             deadline = None if self.deadline is None else \
                 min(self.deadline, time.perf_counter() + ANNEAL_SHARE * float(self.time_limit_s))
             cand = anneal_schedule(data, self.assign, deadline=deadline,
-                                   rounds=ANNEAL_ROUNDS if deadline is None else None)
+                                   rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE)
             self.try_incumbent(cand, self.allowed0, {})
             self.details["after_anneal"] = self.z
         self.pool.add_assignment(self.assign)
@@ -686,6 +699,12 @@ class _Search(Clock):
     def anneals(self) -> bool:
         """The root's primal search is the annealing (:data:`ROOT_PRIMAL`), not the repair and LNS."""
         return ROOT_PRIMAL == "anneal" and self.data.n * self.data.T <= COLGEN_MAX_PAIRS
+
+    @property
+    def lean(self) -> bool:
+        """No LP neighbourhood MIPs at the root: the annealing runs and the instance is small
+        (:data:`LEAN_ROOT_MAX_PAIRS`)."""
+        return self.anneals and self.data.n * self.data.T <= LEAN_ROOT_MAX_PAIRS
 
     def improve_at_root(self) -> None:
         """Repair, window LNS from the repaired schedule (LNS_SHARE of the time left), repair again
