@@ -665,17 +665,21 @@ def test_fixing_at_the_root_keeps_the_optimum_and_uses_every_certificate(seed: i
 
 
 def test_after_the_annealing_no_lp_neighbourhood_and_no_mpc_start(monkeypatch) -> None:
-    """With ROOT_PRIMAL = "anneal" the root runs no LP neighbourhood MIP and the start heuristics
-    leave out ``mpc:3``; with "lns" both run (on an instance small enough for both)."""
+    """With ROOT_PRIMAL = "anneal" the root runs no LP neighbourhood MIP (on instances with n * T <=
+    LEAN_ROOT_MAX_PAIRS) and the start heuristics leave out ``mpc:3``; with "lns" both run, and above
+    LEAN_ROOT_MAX_PAIRS the neighbourhoods run after the annealing too."""
     inst = random_instance(np.random.default_rng(7), T=8, J=5, L=3, tight=0.3)
     calls: list[int] = []
     real = exact_module.lp_neighbourhood
     monkeypatch.setattr(exact_module, "lp_neighbourhood", lambda *a, **k: calls.append(1) or real(*a, **k))
-    for primal, expect in (("anneal", False), ("lns", True)):
+    for primal, lean_max, neighbourhoods, mpc in (("anneal", exact_module.LEAN_ROOT_MAX_PAIRS, False, False),
+                                                  ("lns", exact_module.LEAN_ROOT_MAX_PAIRS, True, True),
+                                                  ("anneal", 0, True, False)):
         monkeypatch.setattr(exact_module, "ROOT_PRIMAL", primal)
+        monkeypatch.setattr(exact_module, "LEAN_ROOT_MAX_PAIRS", lean_max)
         calls.clear()
         sol = solve_exact(inst)
         _check(inst, sol)
         assert sol.status is Status.OPTIMAL
-        assert bool(calls) is expect
-        assert ("mpc:3" in sol.details["start"]["values"]) is expect
+        assert bool(calls) is neighbourhoods
+        assert ("mpc:3" in sol.details["start"]["values"]) is mpc

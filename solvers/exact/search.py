@@ -142,7 +142,8 @@ COVER_CUTS = "off"
 #: The primal search at the root, on instances small enough for column generation (larger ones keep
 #: ``"lns"``): ``"anneal"`` - rounds of simulated annealing over chunk orders (:mod:`.anneal`) right
 #: after the start heuristics (without ``mpc:3``), for ANNEAL_SHARE of the time limit (ANNEAL_ROUNDS
-#: rounds without a limit); no LP neighbourhood MIPs, and after the root only the fixing; ``"lns"`` -
+#: rounds without a limit); no LP neighbourhood MIPs on small instances (LEAN_ROOT_MAX_PAIRS), and
+#: after the root only the fixing; ``"lns"`` -
 #: ``mpc:3`` among the starts, the LP neighbourhoods after the LP and the root, then the level-keeping
 #: repair, the window LNS and the repair again (:meth:`_Search.improve_at_root`). ``"anneal"``: on J=20
 #: the annealing reaches within 0.05 % of the optimum in 4 s (the optimum on s2, s3, s5, s12), where the
