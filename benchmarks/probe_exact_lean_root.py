@@ -95,11 +95,35 @@ def report(path: Path) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def run(J: int, seeds: list[int], arm: str, branching: str, time_limit_s: float, out: Path, **kw) -> None:
+    """One `exact` run per seed of ``T60-J{J}``, each a JSON line printed and appended to ``out``."""
+    cpu = machine_info()["cpu"]
+    for seed in seeds:
+        inst = paper_spec(J, seed).build()
+        load = os.getloadavg()[0]
+        started = time.perf_counter()
+        sol = search.solve_exact(inst, time_limit_s=time_limit_s, branching=branching, **kw)
+        rec = {"instance": f"T60-J{J}-s{seed}", "arm": arm, "branching": branching,
+               "status": sol.status.value,
+               "objective": round(sol.objective, 2), "bound": round(sol.bound, 2),
+               "seconds": round(time.perf_counter() - started, 1),
+               "after_anneal": round(float(sol.details.get("after_anneal", float("nan"))), 2),
+               "root_seconds": round(float(sol.details.get("root", {}).get("seconds", float("nan"))), 1),
+               "root_converged": sol.details.get("root", {}).get("converged"),
+               "nodes": sol.details.get("nodes"), "bound_kind": sol.details.get("bound_kind"),
+               "load_before": round(load, 2), "load_after": round(os.getloadavg()[0], 2), "cpu": cpu}
+        print(json.dumps(rec), flush=True)
+        with out.open("a", encoding="utf-8") as fh:
+            fh.write(json.dumps(rec) + "\n")
+
+
+def arguments(doc: str, arms: tuple[str, ...], seeds: str, argv=None) -> argparse.Namespace | None:
+    """The A/B probes' command line (``--arm`` one of ``arms``); None when ``--report`` printed the
+    tables of ``--out`` and nothing is to be run."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("--J", type=int, default=20)
-    ap.add_argument("--seeds", default="0-13", help="'0-13' or '1,3,4'")
-    ap.add_argument("--arm", choices=("lean", "base"), default="lean")
+    ap.add_argument("--seeds", default=seeds, help="'0-13' or '1,3,4'")
+    ap.add_argument("--arm", choices=arms, default=arms[0])
     ap.add_argument("--branching", choices=search.BRANCHING, default="both")
     ap.add_argument("--time-limit", type=float, default=60.0, help="seconds")
     ap.add_argument("--out", type=Path, required=True)
@@ -107,6 +131,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.report:
         print(report(args.out))
+        return None
+    return args
+
+
+def main(argv=None) -> int:
+    args = arguments(__doc__, ("lean", "base"), "0-13", argv)
+    if args is None:
         return 0
     kw = {}
     if args.arm == "base":
@@ -114,22 +145,7 @@ def main(argv=None) -> int:
         search._Search.fixed_at = _fixed_at_before
         mpc = ("mpc:3",) if args.J * 4 <= search.MPC_MAX_CHUNKS else ()
         kw = {"heuristics": search.START_HEURISTICS + mpc}
-    cpu = machine_info()["cpu"]
-    for seed in _seeds(args.seeds):
-        inst = paper_spec(args.J, seed).build()
-        load = os.getloadavg()[0]
-        started = time.perf_counter()
-        sol = search.solve_exact(inst, time_limit_s=args.time_limit, branching=args.branching, **kw)
-        rec = {"instance": f"T60-J{args.J}-s{seed}", "arm": args.arm, "branching": args.branching,
-               "status": sol.status.value,
-               "objective": round(sol.objective, 2), "bound": round(sol.bound, 2),
-               "seconds": round(time.perf_counter() - started, 1),
-               "after_anneal": round(float(sol.details.get("after_anneal", float("nan"))), 2),
-               "nodes": sol.details.get("nodes"), "bound_kind": sol.details.get("bound_kind"),
-               "load_before": round(load, 2), "load_after": round(os.getloadavg()[0], 2), "cpu": cpu}
-        print(json.dumps(rec), flush=True)
-        with args.out.open("a", encoding="utf-8") as fh:
-            fh.write(json.dumps(rec) + "\n")
+    run(args.J, _seeds(args.seeds), args.arm, args.branching, args.time_limit, args.out, **kw)
     return 0
 
 

@@ -274,20 +274,27 @@ def test_column_generation_stopped_by_its_master_keeps_a_valid_bound(monkeypatch
     assert cg.bound >= solve(inst, "ilp").objective * (1 - 1e-12)
 
 
+def _small_master(seed: int, opt: int, T: int):
+    """A random small instance's Problem A, a pool seeded with one rounded schedule, and a master
+    over it: ``(rng, data, pool, rows, master)``."""
+    from l3gs_opt.solvers.exact.colgen import Master
+
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=T, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
+    data = gap_data(inst)
+    pool, rows = ColumnPool(data), []
+    pool.add_assignment(round_schedule(data, rng.random((data.n, data.T)), data.allowed))
+    return rng, data, pool, rows, Master(data, pool, rows, allowed=data.allowed, forced={})
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
 def test_master_kept_across_nodes_equals_a_fresh_one(seed: int, opt: int) -> None:
     """A master moved from node to node (:meth:`Master.focus`: bounds on columns, convexity rows
     and artificials) converges to the same master value as one built for each node alone."""
-    from l3gs_opt.solvers.exact.colgen import Master
     from l3gs_opt.solvers.exact.search import _propagate
 
-    rng = np.random.default_rng(seed)
-    inst = random_instance(rng, T=5, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
-    data = gap_data(inst)
-    pool, rows = ColumnPool(data), []
-    pool.add_assignment(round_schedule(data, rng.random((data.n, data.T)), data.allowed))
-    kept = Master(data, pool, rows, allowed=data.allowed, forced={})
+    rng, data, pool, rows, kept = _small_master(seed, opt, T=5)
     pairs = np.argwhere(data.allowed)
     used = np.zeros(data.allowed.shape, dtype=bool)
     for _ in range(4):
@@ -322,6 +329,56 @@ def test_master_kept_across_nodes_equals_a_fresh_one(seed: int, opt: int) -> Non
             assert all(a.xbar[i, t] >= 1 - 1e-6 for i, t in forced.items())
         if a.converged and b.converged:
             assert abs(a.master - b.master) <= 1e-6 * max(1.0, abs(b.master))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_master_resolves_primal_after_new_columns_only_and_agrees_with_dual(seed: int, opt: int) -> None:
+    """A master re-solve after new columns only runs primal simplex (the last basis is still
+    primal feasible), after new rows or a node's bound changes dual simplex; either way the
+    master's value is the one a fresh master over the same columns and rows reaches with dual
+    simplex alone, and column generation converges to the same value with both rules."""
+    from l3gs_opt.solvers.exact import colgen
+    from l3gs_opt.solvers.exact.colgen import Master
+
+    rng, data, pool, rows, kept = _small_master(seed, opt, T=6)
+
+    def fresh_value() -> float:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(colgen, "PRIMAL_SIMPLEX", colgen.DUAL_SIMPLEX)
+            other = Master(data, pool, list(kept.rows), allowed=kept.allowed, forced=dict(kept.forced))
+            solved = other.solve()
+        assert solved is not None
+        return solved[0]
+
+    def solve_and_check(strategy: int) -> None:
+        solved = kept.solve()
+        assert solved is not None
+        assert kept.h.getOptionValue("simplex_strategy")[1] == strategy
+        assert abs(solved[0] - fresh_value()) <= 1e-7 * max(1.0, abs(solved[0]))
+        assert kept.changes == set()
+
+    solve_and_check(colgen.DUAL_SIMPLEX)          # (the first solve follows the node's bounds)
+    for _ in range(3):
+        for t in range(data.T):                   # new columns only: primal
+            pool.add(t, np.nonzero(data.allowed[:, t] & (rng.random(data.n) < 0.5))[0])
+        new_columns = [c for c in range(len(pool)) if c not in kept.held]
+        kept.add_columns(new_columns)
+        solve_and_check(colgen.PRIMAL_SIMPLEX if new_columns else colgen.DUAL_SIMPLEX)
+        lam = np.asarray(kept.h.getSolution().col_value)
+        new_rows = kept.violated_rows(kept.xbar(lam))
+        if new_rows:                              # new rows: dual
+            kept.add_rows(new_rows)
+            solve_and_check(colgen.DUAL_SIMPLEX)
+    kept.focus(data.allowed & (rng.random(data.allowed.shape) < 0.7), {})   # a node's bounds: dual
+    solve_and_check(colgen.DUAL_SIMPLEX)
+
+    mixed = column_generation(data, ColumnPool(data), [], allowed=data.allowed, forced={}, incumbent=-math.inf)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(colgen, "PRIMAL_SIMPLEX", colgen.DUAL_SIMPLEX)
+        dual = column_generation(data, ColumnPool(data), [], allowed=data.allowed, forced={}, incumbent=-math.inf)
+    if mixed.converged and dual.converged:
+        assert abs(mixed.master - dual.master) <= 1e-6 * max(1.0, abs(dual.master))
 
 
 def test_column_generation_master_gets_the_node_time_limit() -> None:

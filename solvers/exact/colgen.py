@@ -36,6 +36,12 @@ __all__ = ["ColumnPool", "Master", "CgResult", "column_generation"]
 ENTER_TOL = 1e-9
 #: Precedence row violations below this (in LP units, rows have coefficients +-1) are LP noise.
 ROW_TOL = 1e-7
+#: HiGHS simplex strategies for a master re-solve: after only new columns the last basis is still
+#: primal feasible, so primal simplex continues from it (root column generation, one run each, one
+#: core: J=20 s0 4.4 s against 6.5 s, s3 4.4 against 8.1, s4 and s9 unchanged; J=50 s0 converged
+#: in 42 s where dual simplex had not in 54 s); after new rows or a node's bound changes it is
+#: dual feasible instead, and dual simplex (HiGHS's default) continues.
+PRIMAL_SIMPLEX, DUAL_SIMPLEX = 4, 1
 
 
 class ColumnPool:
@@ -123,6 +129,7 @@ class Master:
         # (number of real columns, then their slots and (column, item) entries): see _compatible_all
         self._entries_of: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.cols: list[int] = []          # pool index of each master column (-1: artificial)
+        self.changes: set[str] = set()     # "columns", "rows", "bounds" since the last solve
         self.held: set[int] = set()        # pool indices in the master
         # Artificial column of each convexity row (keeps the LP feasible when a slot is forced) and
         # of each precedence row (when an upper layer is forced); bound 0 unless so.
@@ -161,6 +168,7 @@ class Master:
             self.h.changeColsBounds(len(idx), idx, np.zeros(len(idx)), up)
         lower = np.asarray([1.0 if t in self.forced_by_slot else -self.inf for t in range(T)])
         self.h.changeRowsBounds(T, np.arange(n, n + T, dtype=np.int32), lower, np.ones(T))
+        self.changes.add("bounds")
         self.clock.limit(None if time_limit_s is None else max(float(time_limit_s), 0.01))
 
     def _compatible_all(self, pos: np.ndarray) -> np.ndarray:
@@ -240,6 +248,7 @@ class Master:
             self.cols.append(c)
             self.held.add(c)
         m = len(pool_indices)
+        self.changes.add("columns")
         self.h.addCols(m, np.asarray(costs), np.zeros(m), np.full(m, self.inf), len(idx),
                        np.asarray(starts, np.int32), np.asarray(idx, np.int32), np.asarray(val, np.float64))
 
@@ -272,6 +281,7 @@ class Master:
             self._rows_of.setdefault(u, []).append(((u, t), base + k))
             self.rows.append((u, t))
         m = len(rows)
+        self.changes.add("rows")
         self.h.addRows(m, np.full(m, -self.inf), np.zeros(m), len(idx), np.asarray(starts, np.int32),
                        np.asarray(idx, np.int32), np.asarray(val, np.float64))
         # Artificial slack per row (big-M), so forcing an upper layer never makes the LP infeasible
@@ -320,6 +330,7 @@ class Master:
         idx, val = c, coef[r, c].astype(np.float64)
         base = self.h.getNumRow()
         m = len(new)
+        self.changes.add("rows")
         self.h.addRows(m, np.full(m, -self.inf), np.asarray([len(cov.items) - 1.0 for cov in new]), len(idx),
                        np.asarray(starts, np.int32), np.asarray(idx, np.int32), np.asarray(val, np.float64))
         self.covers.extend(new)
@@ -335,6 +346,9 @@ class Master:
         optimum, and convergence is judged on that value."""
         import highspy
 
+        strategy = PRIMAL_SIMPLEX if self.changes == {"columns"} else DUAL_SIMPLEX
+        self.h.setOptionValue("simplex_strategy", strategy)
+        self.changes = set()
         for attempt in range(2):
             self.h.run()
             status = self.h.getModelStatus()
