@@ -19,7 +19,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.problem.solution import GAP_TOL, Status
 from l3gs_opt.solvers.brute_force import solve_brute_force
-from l3gs_opt.solvers.exact.colgen import ColumnPool, column_generation
+from l3gs_opt.solvers.exact.colgen import ColumnPool, Master, column_generation
 import l3gs_opt.solvers.exact.search as exact_module
 from l3gs_opt.solvers.exact.search import _split_masks, local_search, reduced_cost_fixing, round_schedule, solve_exact
 from l3gs_opt.solvers.exact.lagrange import (Multipliers, assignment_feasible, assignment_value, gap_data,
@@ -277,8 +277,6 @@ def test_column_generation_stopped_by_its_master_keeps_a_valid_bound(monkeypatch
 def _small_master(seed: int, opt: int, T: int):
     """A random small instance's Problem A, a pool seeded with one rounded schedule, and a master
     over it: ``(rng, data, pool, rows, master)``."""
-    from l3gs_opt.solvers.exact.colgen import Master
-
     rng = np.random.default_rng(seed)
     inst = random_instance(rng, T=T, J=3, L=3, options=ACCEPTED[opt], tight=0.4)
     data = gap_data(inst)
@@ -339,7 +337,6 @@ def test_master_resolves_primal_after_new_columns_only_and_agrees_with_dual(seed
     master's value is the one a fresh master over the same columns and rows reaches with dual
     simplex alone, and column generation converges to the same value with both rules."""
     from l3gs_opt.solvers.exact import colgen
-    from l3gs_opt.solvers.exact.colgen import Master
 
     rng, data, pool, rows, kept = _small_master(seed, opt, T=6)
 
@@ -379,6 +376,31 @@ def test_master_resolves_primal_after_new_columns_only_and_agrees_with_dual(seed
         dual = column_generation(data, ColumnPool(data), [], allowed=data.allowed, forced={}, incumbent=-math.inf)
     if mixed.converged and dual.converged:
         assert abs(mixed.master - dual.master) <= 1e-6 * max(1.0, abs(dual.master))
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, 3))
+def test_master_restored_to_a_nodes_basis_resolves_there_without_pivots(seed: int, opt: int) -> None:
+    """A node's basis (:meth:`Master.snapshot`), restored after the master has moved to another
+    node and grown (new columns), is optimal there again: the re-solve takes no simplex iteration
+    and gives the node's value; with a column the snapshot does not know, the value matches a fresh
+    master's (the restored basis only starts the solve)."""
+    rng, data, pool, rows, kept = _small_master(seed, opt, T=6)
+    column_generation(data, pool, rows, allowed=data.allowed, forced={}, incumbent=-math.inf, master=kept)
+    value_a = kept.solve()[0]
+    basis = kept.snapshot()
+    other = data.allowed & (rng.random(data.allowed.shape) < 0.6)
+    kept.focus(other, {})
+    kept.solve()                                   # (the master's basis is now the other node's)
+    kept.focus(data.allowed, {}, basis=basis)
+    assert kept.solve()[0] == pytest.approx(value_a, rel=1e-9, abs=1e-9)
+    assert kept.h.getInfo().simplex_iteration_count == 0
+    column_generation(data, pool, rows, allowed=other, forced={}, incumbent=-math.inf, master=kept)
+    kept.focus(data.allowed, {}, basis=basis)     # (columns and rows the snapshot does not know)
+    value = kept.solve()[0]
+    assert value >= value_a - 1e-7 * max(1.0, abs(value_a))
+    fresh = Master(data, pool, list(kept.rows), allowed=data.allowed, forced={})
+    assert fresh.solve()[0] == pytest.approx(value, rel=1e-7, abs=1e-7)
 
 
 def test_column_generation_master_gets_the_node_time_limit() -> None:

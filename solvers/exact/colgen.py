@@ -29,7 +29,7 @@ from l3gs_opt.stop import expired
 
 from .lagrange import Cover, GapData, LagrangeValue, Multipliers, lagrangian_value, reduced_profits
 
-__all__ = ["ColumnPool", "Master", "CgResult", "column_generation"]
+__all__ = ["ColumnPool", "Master", "Basis", "CgResult", "column_generation"]
 
 #: A column enters the master when its reduced profit exceeds this fraction of the bound
 #: (smaller improvements are float noise of the LP's dual values).
@@ -74,6 +74,14 @@ class ColumnPool:
     def add_assignment(self, assign: np.ndarray) -> None:
         for t in range(self.data.T):
             self.add(t, np.nonzero(assign == t)[0])
+
+
+@dataclass(frozen=True, eq=False)
+class Basis:
+    """A master basis: HiGHS's status of each column and row (in the master's order) at one solve."""
+
+    cols: tuple
+    rows: tuple
 
 
 @dataclass(eq=False)
@@ -148,9 +156,11 @@ class Master:
         self.add_rows(rows)
         self.focus(allowed, forced, time_limit_s)
 
-    def focus(self, allowed: np.ndarray, forced: dict[int, int], time_limit_s: float | None = None) -> None:
+    def focus(self, allowed: np.ndarray, forced: dict[int, int], time_limit_s: float | None = None,
+              basis: "Basis | None" = None) -> None:
         """Move the master to a node: its arrival mask, its forced items and its time limit
-        (seconds from now)."""
+        (seconds from now); ``basis`` (:meth:`snapshot`, e.g. the parent's last) starts the next
+        solve, else the last solve's basis (another node's, in a best-first search) does."""
         self.allowed, self.forced = allowed, forced
         self.forced_by_slot = {}
         for i, t in forced.items():
@@ -170,6 +180,30 @@ class Master:
         self.h.changeRowsBounds(T, np.arange(n, n + T, dtype=np.int32), lower, np.ones(T))
         self.changes.add("bounds")
         self.clock.limit(None if time_limit_s is None else max(float(time_limit_s), 0.01))
+        if basis is not None:
+            self.restore(basis)
+
+    def snapshot(self) -> "Basis":
+        """The last solve's basis (column and row statuses), to start a child node from."""
+        b = self.h.getBasis()
+        return Basis(tuple(b.col_status), tuple(b.row_status)) if b.valid else Basis((), ())
+
+    def restore(self, basis: "Basis") -> None:
+        """Start the next solve from ``basis``: the columns added since are nonbasic at 0, the rows
+        added since basic. A nonbasic column sits at its lower bound (0: its upper one may be gone
+        at this node) and a nonbasic row at its upper one (its lower one may be)."""
+        import highspy
+
+        if not basis.cols:
+            return
+        st = highspy.HighsBasisStatus
+        cols = [st.kLower if c == st.kUpper else c for c in basis.cols]
+        rows = [st.kUpper if r == st.kLower else r for r in basis.rows]
+        b = highspy.HighsBasis()
+        b.col_status = cols + [st.kLower] * (self.h.getNumCol() - len(cols))
+        b.row_status = rows + [st.kBasic] * (self.h.getNumRow() - len(rows))
+        b.valid = True
+        self.h.setBasis(b)
 
     def _compatible_all(self, pos: np.ndarray) -> np.ndarray:
         """:meth:`compatible` of the pool columns at master positions ``pos``, in one pass over
@@ -398,7 +432,8 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
                       max_iterations: int = 500, stall_iterations: int = 12, start_bound: float = math.inf,
                       trace: list | None = None, clock0: float | None = None, smoothing: float = 0.5,
                       start: tuple[Multipliers, LagrangeValue] | None = None,
-                      stop: Callable[[], bool] | None = None, master: "Master | None" = None) -> CgResult:
+                      stop: Callable[[], bool] | None = None, master: "Master | None" = None,
+                      basis: Basis | None = None) -> CgResult:
     """Column generation at a node until converged, stalled, pruned (bound <= incumbent), out of
     time, or ``stop()`` returns true (polled before each master solve once a bound is known: e.g.
     another thread closed the gap).
@@ -417,7 +452,7 @@ def column_generation(data: GapData, pool: ColumnPool, rows: list[tuple[int, int
         master = Master(data, pool, rows, allowed=allowed, forced=forced, time_limit_s=time_limit_s)
     else:
         master.add_rows(rows)
-        master.focus(allowed, forced, time_limit_s)
+        master.focus(allowed, forced, time_limit_s, basis)
     best, best_mult, best_val = start_bound, None, None
     if start is not None:   # e.g. the LP duals: the first stability centre
         best_mult, best_val = start
