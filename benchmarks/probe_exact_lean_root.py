@@ -59,9 +59,10 @@ def _seeds(text: str) -> list[int]:
     return list(range(int(lo), int(hi) + 1)) if hi else [int(s) for s in text.split(",")]
 
 
-def report(path: Path) -> str:
-    """Markdown: one row per instance, one column per arm (``arm`` of the records, in the order met),
-    then per size the proofs and the median run time (an open run counted at its time limit)."""
+def arm_table(path: Path, order=None) -> tuple[list[str], dict[str, dict], list[str]]:
+    """The records of ``path`` as a Markdown table: one row per instance (in ``order``'s order, else
+    as met), one column per arm (as met); an open run shows schedule / bound (gap). Returns
+    (arms, records by instance and arm, the table's lines)."""
     recs = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
     arms = list(dict.fromkeys(r["arm"] for r in recs))
     by: dict[str, dict] = {}
@@ -75,11 +76,20 @@ def report(path: Path) -> str:
             return f"**optimal {r['seconds']:.1f} s**"
         return f"{r['objective']:,.2f} / {r['bound']:,.2f} ({(r['bound'] - r['objective']) / r['bound']:.1e})"
 
+    lines = ["| instance | " + " | ".join(arms) + " |", "|---" * (len(arms) + 1) + "|"]
+    lines += [f"| {i} | " + " | ".join(cell(by[i].get(a)) for a in arms) + " |"
+              for i in (sorted(by, key=order) if order else by)]
+    return arms, by, lines
+
+
+def report(path: Path) -> str:
+    """Markdown: :func:`arm_table`, then per size the proofs and the median run time (an open run
+    counted at its time limit)."""
+
     def size_seed(name: str) -> tuple[int, int]:
         return int(name.split("-J")[1].split("-")[0]), int(name.split("-s")[1])
 
-    lines = ["| instance | " + " | ".join(arms) + " |", "|---" * (len(arms) + 1) + "|"]
-    lines += [f"| {i} | " + " | ".join(cell(by[i].get(a)) for a in arms) + " |" for i in sorted(by, key=size_seed)]
+    arms, by, lines = arm_table(path, size_seed)
     lines.append("")
     for J in sorted({size_seed(i)[0] for i in by}):
         seeds = sorted(size_seed(i)[1] for i in by if size_seed(i)[0] == J)

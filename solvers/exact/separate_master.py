@@ -26,6 +26,7 @@ import numpy as np
 from l3gs_opt import stop
 
 from .separate_data import Path, PriceResult, SeparateData, lagrangian_bound, path_bytes, path_value
+from .colgen import DUAL_SIMPLEX, PRIMAL_SIMPLEX
 
 __all__ = ["PathPool", "PathMaster", "NodeResult", "path_generation"]
 
@@ -117,6 +118,7 @@ class PathMaster:
                        np.zeros(0, np.int32), np.zeros(0))
         self.cols: list[int] = []          # pool index per master column (-1: artificial)
         self.members: set[int] = set()
+        self.solved = False                # (solves after the first: primal simplex)
         big_m = 10.0 * (K + 1)
         for k in np.nonzero(must != 0)[0]:
             self.h.addCol(big_m, 0.0, self.inf, 1, np.asarray([k], np.int32), np.asarray([1.0]))
@@ -163,6 +165,11 @@ class PathMaster:
         utility, lam per master column), or None when HiGHS did not reach an optimum."""
         import highspy
 
+        # A path master only ever gains columns after its first solve: its last basis is still
+        # primal feasible, so primal simplex goes on from it (as Problem I's master does after new
+        # columns: colgen.PRIMAL_SIMPLEX).
+        self.h.setOptionValue("simplex_strategy", PRIMAL_SIMPLEX if self.solved else DUAL_SIMPLEX)
+        self.solved = True
         self.h.run()
         if self.h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
             return None
