@@ -127,17 +127,24 @@ def run(J: int, seeds: list[int], arm: str, branching: str, time_limit_s: float,
             fh.write(json.dumps(rec) + "\n")
 
 
-def arguments(doc: str, arms: tuple[str, ...], seeds: str, argv=None) -> argparse.Namespace | None:
-    """The A/B probes' command line (``--arm`` one of ``arms``); None when ``--report`` printed the
-    tables of ``--out`` and nothing is to be run."""
+def ab_parser(doc: str, arms: tuple[str, ...]) -> argparse.ArgumentParser:
+    """What every A/B probe's command line has: ``--arm`` (one of ``arms``), ``--time-limit``,
+    ``--out`` and ``--report``."""
     ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
-    ap.add_argument("--J", type=int, default=20)
-    ap.add_argument("--seeds", default=seeds, help="'0-13' or '1,3,4'")
     ap.add_argument("--arm", choices=arms, default=arms[0])
-    ap.add_argument("--branching", choices=search.BRANCHING, default="both")
     ap.add_argument("--time-limit", type=float, default=60.0, help="seconds")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--report", action="store_true", help="print the tables of --out and run nothing")
+    return ap
+
+
+def arguments(doc: str, arms: tuple[str, ...], seeds: str, argv=None) -> argparse.Namespace | None:
+    """The A/B probes' command line over ``T60-J{J}`` seeds (:func:`ab_parser`); None when
+    ``--report`` printed the tables of ``--out`` and nothing is to be run."""
+    ap = ab_parser(doc, arms)
+    ap.add_argument("--J", type=int, default=20)
+    ap.add_argument("--seeds", default=seeds, help="'0-13' or '1,3,4'")
+    ap.add_argument("--branching", choices=search.BRANCHING, default="both")
     args = ap.parse_args(argv)
     if args.report:
         print(report(args.out))

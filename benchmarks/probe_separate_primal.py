@@ -11,7 +11,6 @@ after another on an otherwise idle machine; ``--report`` prints the table.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -26,7 +25,7 @@ from l3gs_opt.bench.suites import _problem  # noqa: E402
 from l3gs_opt.solvers.exact import colgen, separate_master  # noqa: E402
 from l3gs_opt.solvers.exact.search import solve_exact  # noqa: E402
 from machine import machine_info  # noqa: E402
-from probe_exact_lean_root import arm_table  # noqa: E402
+from probe_exact_lean_root import ab_parser, arm_table  # noqa: E402
 
 
 def report(path: Path) -> str:
@@ -34,12 +33,8 @@ def report(path: Path) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = ab_parser(__doc__, ("now", "dual"))
     ap.add_argument("--cases", default="16:1,20:0,50:0,50:1", help="J:seed,...")
-    ap.add_argument("--arm", choices=("now", "dual"), default="now")
-    ap.add_argument("--time-limit", type=float, default=60.0, help="seconds")
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--report", action="store_true", help="print the table of --out and run nothing")
     args = ap.parse_args(argv)
     if args.report:
         print(report(args.out))
