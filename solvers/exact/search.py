@@ -90,9 +90,14 @@ __all__ = ["solve_exact", "local_search", "round_schedule", "reduced_cost_fixing
 START_HEURISTICS = ("rolling-future:bb", "slope", "rolling:bb")
 MPC_MAX_CHUNKS = 100
 #: Root column generation runs only when Problem A has at most this many (chunk, slot) pairs:
-#: above it (J=200, T=60: 48,000 pairs) one master round takes seconds and the 60 s goes to the
-#: primal side and HiGHS instead; the bound is then the Lagrangian at the LP duals.
-COLGEN_MAX_PAIRS = 20_000
+#: above it the 60 s goes to the primal side (the LP and band neighbourhoods, the window LNS) and
+#: HiGHS instead, and the bound is the Lagrangian at the LP duals and HiGHS's. J=20 (T=60: 4,800
+#: pairs) keeps it: its proofs come from the root and branch-and-price. At J=50 (12,000) the root
+#: did not converge in its share on 4 of 5 seeds, its bound stayed at the LP duals' certificate,
+#: and HiGHS's bound ended below the Dantzig-Wolfe one; without it (A/B, J=50 seeds 0-9, 60 s)
+#: the final gap was smaller on 8 of 10 seeds, s3 proven (benchmarks/results/exact_colgen_max_pairs_ab.md).
+#: At J=200 (48,000) one master round takes seconds. Sizes between were not measured.
+COLGEN_MAX_PAIRS = 10_000
 #: Shares of the time left that each root phase may use (the rest goes to the branching):
 #: column generation, window LNS, and one local-search call (its exchange step is O(n^2)).
 COLGEN_SHARE, LNS_SHARE, LOCAL_SEARCH_SHARE = 0.4, 0.2, 0.02
@@ -161,7 +166,8 @@ ANNEAL_PATIENCE = 4
 #: The LP neighbourhoods are left out after the annealing only where n * T is at most this (J=20:
 #: 4,800): at J=50 (12,000; the root column generation does not converge in its share and the gap
 #: is mostly the schedule) the run with them ended higher than two runs without on 6 of the 8
-#: pairs of the four open seeds (equal on 1; benchmarks/results/exact_lean_root_ab.md).
+#: pairs of the four open seeds (equal on 1; benchmarks/results/exact_lean_root_ab.md). (J=50 has
+#: since left the annealing's sizes: :data:`COLGEN_MAX_PAIRS`.)
 LEAN_ROOT_MAX_PAIRS = 8_000
 #: Branch-and-price is best-first over bands of this relative width (of the root bound): of the
 #: open nodes whose bounds fall in one band, the newest comes first (a dive). On T60-J20-s13 and
