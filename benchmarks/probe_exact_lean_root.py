@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from l3gs_opt.bench.suites import paper_spec  # noqa: E402
+from l3gs_opt.jsonout import dumps  # noqa: E402
 from l3gs_opt.models.backends.highs_race import mip_seeds  # noqa: E402
 from l3gs_opt.solvers.exact import search  # noqa: E402
 from l3gs_opt.solvers.exact.lns import lp_neighbourhood  # noqa: E402
@@ -122,9 +123,10 @@ def run(J: int, seeds: list[int], arm: str, branching: str, time_limit_s: float,
                "root_converged": sol.details.get("root", {}).get("converged"),
                "nodes": sol.details.get("nodes"), "bound_kind": sol.details.get("bound_kind"),
                "load_before": round(load, 2), "load_after": round(os.getloadavg()[0], 2), "cpu": cpu}
-        print(json.dumps(rec), flush=True)
+        line = dumps(rec)   # (no annealing: after_anneal is NaN, written as null)
+        print(line, flush=True)
         with out.open("a", encoding="utf-8") as fh:
-            fh.write(json.dumps(rec) + "\n")
+            fh.write(line + "\n")
 
 
 def ab_parser(doc: str, arms: tuple[str, ...]) -> argparse.ArgumentParser:
