@@ -28,6 +28,7 @@ import os
 import time
 from typing import Any, Callable, Sequence
 
+from l3gs_opt import stop
 from l3gs_opt.errors import L3gsError
 
 __all__ = ["EXECUTORS", "WORKER_CORES_ENV", "ExecutorError", "check_executor", "run_tasks", "run_guarded", "usable_cores"]
@@ -69,9 +70,11 @@ def run_guarded(work: Callable[[Any], Any], task: Any, hard_limit_s: float | Non
     parent, child = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_fork_worker, args=(child, work, task))
     started = time.perf_counter()
-    proc.start()
+    with stop.noted_interrupts() as interrupted:
+        proc.start()
     child.close()
     try:
+        interrupted()
         if parent.poll(hard_limit_s):
             try:
                 return parent.recv()
@@ -152,41 +155,43 @@ def _run_local(todo: list, work: Callable, write: Callable, jobs: int, limit: fl
     share = max(1, usable_cores() // jobs)
     running: list[tuple[Any, Any, Any, float]] = []
     queue = list(todo)
-    try:
-        while queue or running:
-            while queue and len(running) < jobs:
-                task = queue.pop(0)
-                parent, child = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_fork_worker, args=(child, work, task, share))
-                proc.start()
-                child.close()
-                running.append((task, proc, parent, time.perf_counter()))
-            still = []
-            for task, proc, conn, started in running:
-                elapsed = time.perf_counter() - started
-                if conn.poll():
-                    try:
-                        result = conn.recv()
-                    except EOFError:
-                        result = failed(task, elapsed, "died")
-                    proc.join()
-                    write(task, result)
-                elif not proc.is_alive():
-                    proc.join()
-                    write(task, failed(task, elapsed, "died"))
-                elif limit is not None and elapsed > limit:
-                    proc.kill()
-                    proc.join()
-                    write(task, failed(task, elapsed, "killed"))
-                else:
-                    still.append((task, proc, conn, started))
-            running = still
-            if running:
-                time.sleep(0.01)
-    finally:
-        for _, proc, _, _ in running:  # interrupted: stop the children, keep what was written
-            proc.kill()
-            proc.join()
+    with stop.noted_interrupts() as interrupted:
+        try:
+            while queue or running:
+                while queue and len(running) < jobs:
+                    task = queue.pop(0)
+                    parent, child = ctx.Pipe(duplex=False)
+                    proc = ctx.Process(target=_fork_worker, args=(child, work, task, share))
+                    proc.start()
+                    child.close()
+                    running.append((task, proc, parent, time.perf_counter()))
+                    interrupted()   # a Ctrl-C that landed in the fork (see l3gs_opt.stop)
+                still = []
+                for task, proc, conn, started in running:
+                    elapsed = time.perf_counter() - started
+                    if conn.poll():
+                        try:
+                            result = conn.recv()
+                        except EOFError:
+                            result = failed(task, elapsed, "died")
+                        proc.join()
+                        write(task, result)
+                    elif not proc.is_alive():
+                        proc.join()
+                        write(task, failed(task, elapsed, "died"))
+                    elif limit is not None and elapsed > limit:
+                        proc.kill()
+                        proc.join()
+                        write(task, failed(task, elapsed, "killed"))
+                    else:
+                        still.append((task, proc, conn, started))
+                running = still
+                if running:
+                    time.sleep(0.01)
+        finally:
+            for _, proc, _, _ in running:  # interrupted: stop the children, keep what was written
+                proc.kill()
+                proc.join()
 
 
 def _run_dask(todo: list, work: Callable, write: Callable, jobs: int, address: str | None,

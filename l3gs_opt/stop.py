@@ -13,6 +13,11 @@ CBC, which PuLP runs as a child process, does not see a request made in Python. 
 Ctrl-C reaches it directly (it is in the terminal's process group), and it stops as at its time
 limit: its best integer schedule, if it found one, and its bound. SCIP (an optional backend) is not
 watched. The compiled knapsack searches end at their own (short) limits.
+
+A process that forks in a loop (the local executor) would lose some Ctrl-Cs: Python drops an
+exception raised inside a fork hook (:func:`os.register_at_fork`; :mod:`logging` registers some),
+so a SIGINT that lands during a fork raises its KeyboardInterrupt where nobody sees it.
+:func:`noted_interrupts` keeps a note of it for the loop to raise again.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, TypeVar
 
-__all__ = ["requested", "request", "clear", "expired", "on_interrupt", "stoppable", "STOPPED_NOTE"]
+__all__ = ["requested", "request", "clear", "expired", "on_interrupt", "noted_interrupts", "stoppable", "STOPPED_NOTE"]
 
 #: What a method stopped on request says (appended to its message).
 STOPPED_NOTE = "stopped on request (Ctrl-C) before its time limit: the best schedule so far and a valid bound"
@@ -79,6 +84,40 @@ def on_interrupt(notice: str | None = None) -> Iterator[None]:
     finally:
         signal.signal(signal.SIGINT, previous)
         _flag.clear()
+
+
+@contextmanager
+def noted_interrupts() -> Iterator[Callable[[], None]]:
+    """Within the block, SIGINT is handled as before, and a KeyboardInterrupt its handler raises is
+    also noted; the block gets a ``check()`` that raises KeyboardInterrupt again if one was noted
+    (once). A loop that forks calls it after each fork, where Python may have dropped the first
+    (see the module doc). A handler that does not raise (:func:`on_interrupt`'s first Ctrl-C) is
+    left alone. Outside the main thread, or with SIGINT ignored or left to the system, ``check``
+    does nothing."""
+    noted = threading.Event()
+
+    def check() -> None:
+        if noted.is_set():
+            noted.clear()
+            raise KeyboardInterrupt
+
+    previous = signal.getsignal(signal.SIGINT) if threading.current_thread() is threading.main_thread() else None
+    if not callable(previous):
+        yield check
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        try:
+            previous(signum, frame)
+        except KeyboardInterrupt:
+            noted.set()
+            raise
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def stoppable(run: Callable[[], T], halt: Callable[[], None], poll_s: float = 0.05) -> T:

@@ -132,8 +132,10 @@ def test_interrupted_run_resumes_without_losing_records(tmp_path):
            "--out", str(out), "--no-progress", "--time-limit", "30"]
     # As from a terminal: a suite started as a background job (`pytest ... &`) ignores SIGINT, and
     # Python then leaves it ignored in the child, so Ctrl-C would never arrive.
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    err = tmp_path / "stderr.txt"
+    with open(err, "wb") as err_file:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_file,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     results = out / "results.jsonl"
     deadline = time.time() + 120
     while time.time() < deadline and (not results.exists() or len(results.read_text().splitlines()) < 5):
@@ -142,7 +144,8 @@ def test_interrupted_run_resumes_without_losing_records(tmp_path):
     proc.wait(timeout=60)
     before = read_records(results)
     expected = 2 * len(STIFF_CASES) * 2   # each stiff case at T=1 and T=5, two methods
-    assert 5 <= len(before) < expected
+    assert 5 <= len(before) < expected, (proc.returncode, err.read_text()[-500:])
+    assert proc.returncode == 130
     assert main(["bench", "--suite", "stiff", "--methods", "ilp/highs,ilp/cbc", "--out", str(out), "--no-progress",
                  "--resume", "--time-limit", "30"]) == 0
     after = read_records(results)

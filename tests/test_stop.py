@@ -61,6 +61,67 @@ def test_first_sigint_requests_a_stop_and_the_second_raises() -> None:
     assert not stop.requested()
 
 
+class _InterruptedDestructor:
+    """Ctrl-C lands while Python runs a destructor, which (like a fork hook) drops what it raises."""
+
+    def __del__(self) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(10_000):   # Python code: the handler runs here, and its KeyboardInterrupt is dropped
+            pass
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")   # the drop is the point
+def test_noted_interrupts_raises_one_that_python_dropped() -> None:
+    before = signal.getsignal(signal.SIGINT)
+    with stop.noted_interrupts() as check:
+        check()   # nothing noted: no-op
+        _InterruptedDestructor()   # collected at once; its KeyboardInterrupt goes nowhere
+        with pytest.raises(KeyboardInterrupt):
+            check()
+        check()   # raised once: the note is spent
+    assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_noted_interrupts_leaves_a_stop_request_alone() -> None:
+    with stop.on_interrupt(), stop.noted_interrupts() as check:
+        os.kill(os.getpid(), signal.SIGINT)
+        assert _wait_for(stop.requested)
+        check()   # the first Ctrl-C asked for a stop and raised nothing: nothing to raise again
+
+
+#: A child that forks tasks while every fork takes a Ctrl-C inside a fork hook (as logging's own
+#: hooks can): Python drops that KeyboardInterrupt, and before l3gs_opt.stop.noted_interrupts the
+#: local executor ran every task to the end. Prints how many tasks were written, then how it ended.
+_FORK_HOOK_CHILD = """
+import os, signal, sys
+from l3gs_opt.executors import run_tasks
+
+def hit():
+    os.kill(os.getpid(), signal.SIGINT)
+    for _ in range(10_000):
+        pass
+
+os.register_at_fork(before=hit)
+done = []
+try:
+    run_tasks(list(range(5)), abs, lambda task, result: done.append(task), jobs=1,
+              failed=lambda task, seconds, why: None)
+    print(len(done), "finished")
+except KeyboardInterrupt:
+    print(len(done), "interrupted")
+"""
+
+
+def test_a_ctrl_c_inside_a_fork_hook_stops_the_local_executor() -> None:
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _FORK_HOOK_CHILD], capture_output=True, text=True, timeout=60,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert out.stdout.split() == ["0", "interrupted"], (out.stdout, out.stderr[-500:])
+    assert "Exception ignored" in out.stderr   # the mechanism: Python did drop the first one
+
+
 def test_stoppable_returns_raises_and_halts_once() -> None:
     assert stop.stoppable(lambda: 42, lambda: None) == 42
     with pytest.raises(ZeroDivisionError):
