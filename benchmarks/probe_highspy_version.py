@@ -17,12 +17,19 @@ Three commands, each run alone on an otherwise idle machine:
   and its cut-off and tolerances beside it (``<model>.mps.json``) into ``--dir``.
 * ``solve``: HiGHS alone on one exported model, with its cut-off, serial (``threads=1``) or
   ``--parallel``; one JSON line on stdout.
+
+``exact --log DIR`` (thirtieth session) also writes each HiGHS MIP's own log to ``DIR`` and, after
+the run, one JSON line per MIP to ``DIR/phases.jsonl``: when it started (seconds into the run), its
+size, its presolve time, when its first node line was printed (HiGHS's clock: presolve and the
+set-up before the root LP) and its total time. That is where a run past its limit spends the time
+no callback reaches.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -79,6 +86,48 @@ def _export(directory: Path, tag: str) -> list:
     return written
 
 
+def _logging_mips(directory: Path) -> tuple[list, float]:
+    """Give every MIP `exact` builds its own HiGHS log in ``directory``; returns the list of
+    (path, start) filled as they are built and the clock they start on (reset by the caller)."""
+    from l3gs_opt.solvers.exact import lns
+
+    plain, logs, clock = lns.new_highs, [], [time.perf_counter()]
+
+    def new_highs(**kw):
+        h = plain(**kw)
+        if kw.get("mip"):
+            path = directory / f"mip_{len(logs)}.log"
+            h.setOptionValue("output_flag", True)
+            h.setOptionValue("log_to_console", False)
+            h.setOptionValue("log_file", str(path))
+            logs.append((path, time.perf_counter() - clock[0]))
+        return h
+
+    lns.new_highs = new_highs
+    return logs, clock
+
+
+#: A node line of HiGHS's branch-and-bound log ends with its clock ("... 15.6s").
+_NODE_LINE = re.compile(r"^\s*[A-Za-z]?\s+\d+\s+\d+\s+\d+\s+\S+%.*\s(\d+(?:\.\d+)?)s\s*$")
+
+
+def log_phases(path: Path, start_s: float) -> dict:
+    """The phases of one HiGHS MIP log (seconds on HiGHS's clock; None: not in the log)."""
+    text = path.read_text(errors="replace")
+    size = re.search(r"MIP has (\d+) rows; (\d+) cols", text)
+    first = next((float(m.group(1)) for m in map(_NODE_LINE.match, text.splitlines()) if m), None)
+    total = re.search(r"^  Timing\s+(\S+)", text, re.M)
+    # Presolve's last progress line ("... nonzeros 9s"; HiGHS 1.14 reports no presolve time).
+    steps = re.findall(r"nonzeros (\d+(?:\.\d+)?)s\s*$", text.split("Presolve reductions")[0], re.M)
+    reported = re.search(r"^\s+(\S+) \(Presolve\)", text, re.M)   # (1.15 and newer)
+    status = re.search(r"^  Status\s+(.+)$", text, re.M)
+    return {"log": path.name, "start_s": round(start_s, 2),
+            "rows": int(size.group(1)) if size else None, "cols": int(size.group(2)) if size else None,
+            "presolve_s": float(reported.group(1)) if reported else float(steps[-1]) if steps else None, "first_node_line_s": first,
+            "total_s": float(total.group(1)) if total else None,
+            "status": status.group(1).strip() if status else None}
+
+
 def _instance(J: int, seed: int, budget: str):
     from bench_exact import bench_instance
     from l3gs_opt.bench.suites import paper_spec
@@ -122,6 +171,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, help="exact: JSON lines appended here")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/highs_models"), help="export: where the models go")
     ap.add_argument("--model", type=Path, help="solve: an exported .mps file")
+    ap.add_argument("--log", type=Path, help="exact: each HiGHS MIP's log and DIR/phases.jsonl go here")
     args = ap.parse_args(argv)
     if args.command == "solve":
         print(json.dumps(solve_model(args.model, args.parallel, args.seed, args.time_limit)), flush=True)
@@ -142,7 +192,18 @@ def main(argv=None) -> int:
         ap.error("exact runs the per-slot instances (probe_exact_lean_root.run)")
     from probe_exact_lean_root import run
     arm = "highspy-" + highspy.Highs().version() + ("-parallel" if args.parallel else "")
+    logs = None
+    if args.log is not None:
+        args.log.mkdir(parents=True, exist_ok=True)
+        logs, clock = _logging_mips(args.log)
+        clock[0] = time.perf_counter()   # (the instance is built in run(): a fraction of a second)
     run(args.J, [args.seed], arm, "both", args.time_limit, args.out)
+    if logs is not None:
+        with (args.log / "phases.jsonl").open("a", encoding="utf-8") as fh:
+            for path, start in logs:
+                line = json.dumps(dict(log_phases(path, start), instance=f"T60-J{args.J}-s{args.seed}", arm=arm))
+                print(line)
+                fh.write(line + "\n")
     return 0
 
 
