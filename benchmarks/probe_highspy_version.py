@@ -40,22 +40,32 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import highspy  # noqa: E402
 
 
-def _parallel_mips() -> None:
-    """One HiGHS run per MIP with two tree-search threads instead of the race of two seeds."""
-    from l3gs_opt.models.backends import highs_race
+def _on_mips(setup) -> None:
+    """Call ``setup(h)`` on every HiGHS MIP `exact` builds (wraps its ``new_highs``; stacks)."""
     from l3gs_opt.solvers.exact import lns
 
-    highs_race.RACE_RUNS = 1
     plain = lns.new_highs
 
     def new_highs(**kw):
         h = plain(**kw)
         if kw.get("mip"):
-            h.setOptionValue("parallel", "on")
-            h.setOptionValue("threads", 2)
+            setup(h)
         return h
 
     lns.new_highs = new_highs
+
+
+def _parallel_mips() -> None:
+    """One HiGHS run per MIP with two tree-search threads instead of the race of two seeds."""
+    from l3gs_opt.models.backends import highs_race
+
+    highs_race.RACE_RUNS = 1
+
+    def parallel(h) -> None:
+        h.setOptionValue("parallel", "on")
+        h.setOptionValue("threads", 2)
+
+    _on_mips(parallel)
 
 
 def _export(directory: Path, tag: str) -> list:
@@ -86,25 +96,21 @@ def _export(directory: Path, tag: str) -> list:
     return written
 
 
-def _logging_mips(directory: Path) -> tuple[list, float]:
-    """Give every MIP `exact` builds its own HiGHS log in ``directory``; returns the list of
-    (path, start) filled as they are built and the clock they start on (reset by the caller)."""
-    from l3gs_opt.solvers.exact import lns
+def _logging_mips(directory: Path) -> list[tuple[Path, float]]:
+    """Give every MIP `exact` builds its own HiGHS log in ``directory``; returns the (log, start in
+    seconds from now) of each, filled as they are built."""
+    logs: list[tuple[Path, float]] = []
+    started = time.perf_counter()
 
-    plain, logs, clock = lns.new_highs, [], [time.perf_counter()]
+    def log(h) -> None:
+        path = directory / f"mip_{len(logs)}.log"
+        h.setOptionValue("output_flag", True)
+        h.setOptionValue("log_to_console", False)
+        h.setOptionValue("log_file", str(path))
+        logs.append((path, time.perf_counter() - started))
 
-    def new_highs(**kw):
-        h = plain(**kw)
-        if kw.get("mip"):
-            path = directory / f"mip_{len(logs)}.log"
-            h.setOptionValue("output_flag", True)
-            h.setOptionValue("log_to_console", False)
-            h.setOptionValue("log_file", str(path))
-            logs.append((path, time.perf_counter() - clock[0]))
-        return h
-
-    lns.new_highs = new_highs
-    return logs, clock
+    _on_mips(log)
+    return logs
 
 
 #: A node line of HiGHS's branch-and-bound log ends with its clock ("... 15.6s").
@@ -123,7 +129,8 @@ def log_phases(path: Path, start_s: float) -> dict:
     status = re.search(r"^  Status\s+(.+)$", text, re.M)
     return {"log": path.name, "start_s": round(start_s, 2),
             "rows": int(size.group(1)) if size else None, "cols": int(size.group(2)) if size else None,
-            "presolve_s": float(reported.group(1)) if reported else float(steps[-1]) if steps else None, "first_node_line_s": first,
+            "presolve_s": float(reported.group(1)) if reported else float(steps[-1]) if steps else None,
+            "first_node_line_s": first,
             "total_s": float(total.group(1)) if total else None,
             "status": status.group(1).strip() if status else None}
 
@@ -195,8 +202,7 @@ def main(argv=None) -> int:
     logs = None
     if args.log is not None:
         args.log.mkdir(parents=True, exist_ok=True)
-        logs, clock = _logging_mips(args.log)
-        clock[0] = time.perf_counter()   # (the instance is built in run(): a fraction of a second)
+        logs = _logging_mips(args.log)   # (its clock includes run()'s instance build: under a second)
     run(args.J, [args.seed], arm, "both", args.time_limit, args.out)
     if logs is not None:
         with (args.log / "phases.jsonl").open("a", encoding="utf-8") as fh:

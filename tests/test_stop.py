@@ -98,7 +98,7 @@ from l3gs_opt.executors import run_tasks
 
 def hit():
     os.kill(os.getpid(), signal.SIGINT)
-    for _ in range(10_000):
+    for _ in range(10_000):   # Python code: the handler runs here, inside the fork hook
         pass
 
 os.register_at_fork(before=hit)
