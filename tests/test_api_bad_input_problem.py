@@ -222,6 +222,18 @@ def test_highs_options_it_takes_still_work_and_unknown_names_still_warn():
         assert L.solve(inst, "ilp", options={"fancy": 1}).objective == best
 
 
+def test_a_threads_option_is_honoured_after_other_solves_in_the_process():
+    # HiGHS makes one thread pool per process at its first solve; a later solve asking for another
+    # count used to end at once as "error" with no schedule. Three counts: at least two differ
+    # from whatever pool this test process has, on any machine.
+    inst = layered()
+    best = L.solve(inst, "brute").objective
+    for threads in (1, 2, 3, None):
+        options = {} if threads is None else {"threads": threads}
+        sol = L.solve(inst, "ilp", backend="highs", options=options)
+        assert (sol.status, sol.objective) == ("optimal", best), threads
+
+
 # -- C6: a time limit beyond float's range -----------------------------------------------------------------
 
 def test_a_time_limit_beyond_float_range_means_no_limit():

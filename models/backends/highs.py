@@ -168,6 +168,24 @@ def set_option(h: highspy.Highs, key: str, value: Any) -> None:
                          f"this value for its {kind} option {key!r}")
 
 
+def _run(h: highspy.Highs, *, threads_asked: bool) -> None:
+    """``h.run()``, and once more after restarting HiGHS's thread pool when the user's ``threads``
+    option is what stopped it.
+
+    HiGHS keeps one thread pool per process, made by its first solve with that solve's
+    ``threads`` (0, the default, takes whatever pool exists). A later solve asking for another
+    count returns ``kError`` at once with the model status unset: the user saw "error" and no
+    schedule. Restarting the pool (``resetGlobalScheduler``) lets it run with the count asked
+    for; later solves with the default use that pool. It must not happen while another HiGHS
+    solve of this process runs (nothing here sets ``threads``: only a user can).
+    """
+    status = h.run()
+    if (threads_asked and status == highspy.HighsStatus.kError
+            and h.getModelStatus() == highspy.HighsModelStatus.kNotset):
+        highspy.Highs.resetGlobalScheduler(True)
+        h.run()
+
+
 def version() -> str:
     return f"highspy {_pkg_version('highspy')}"
 
@@ -210,7 +228,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         options = {"presolve": "off", **options}
     for key, value in options.items():
         set_option(h, key, value)
-    h.run()
+    _run(h, threads_asked="threads" in options)
     model_status = h.getModelStatus()
     info = h.getInfo()
     status = status_map.get(model_status, Status.ERROR)
