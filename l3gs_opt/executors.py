@@ -18,7 +18,8 @@ or ``died``) as its result.
 ``start_method``: ``fork`` (default; ``work`` may be any callable) or ``spawn`` (a fresh
 interpreter per task; ``work`` and the tasks must pickle). Use ``spawn`` when this process has
 run compiled parallel code (numba, torch) before: a forked child of a process whose thread pools
-are running can hang in them.
+are running can hang in them. (HiGHS's pool needs no spawn: the HiGHS adapter drops it in every
+forked child, :mod:`l3gs_opt.models.backends.highs`.)
 """
 
 from __future__ import annotations

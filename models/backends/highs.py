@@ -11,6 +11,7 @@ still has continuous columns is solved with presolve off.
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from importlib.metadata import version as _pkg_version
@@ -42,6 +43,18 @@ PARALLEL_RULE_OFF = 1 << 13
 #: multiplying the digit weights back together, and called a model whose empty schedule is
 #: feasible "infeasible"; with it off, rules 14-16 still returned a schedule 1e-3 below the optimum
 #: as optimal on the stiff suite's bytes_1e12-T5 GAP form. Without presolve all of them were right.
+
+
+def _fresh_pool_in_child() -> None:
+    """HiGHS's thread pool is one per process, made by its first solve; a forked child inherits
+    it without its threads, and its first solve that hands work to them waits for ever (seen
+    here: a parent that solved with ``threads=2``, as 1.14 does by default on 4 or more cores
+    and 1.16 on 2, then forked; the child's MIP never returned). Dropping the inherited pool
+    (without waiting for threads that are not there) makes the child's first solve build its own."""
+    highspy.Highs.resetGlobalScheduler(False)
+
+
+os.register_at_fork(after_in_child=_fresh_pool_in_child)
 
 
 class WallClock:

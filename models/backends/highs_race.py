@@ -19,6 +19,7 @@ import highspy
 import numpy as np
 
 from l3gs_opt.executors import usable_cores
+from l3gs_opt.models.backends import highs as _highs  # noqa: F401  (forked children get a fresh HiGHS pool)
 
 __all__ = ["RACE_RUNS", "RACE_SWITCH_INTERVAL_S", "RaceOutcome", "mip_seeds", "race_mip"]
 
