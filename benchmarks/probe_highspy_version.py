@@ -18,6 +18,11 @@ Three commands, each run alone on an otherwise idle machine:
 * ``solve``: HiGHS alone on one exported model, with its cut-off, serial (``threads=1``) or
   ``--parallel``; one JSON line on stdout.
 
+``exact --pool N`` (thirty-first session) first makes HiGHS's per-process thread pool with N threads
+(a one-variable LP with ``threads=N``; every later solve with the default count uses that pool).
+1.16's default pool on a 2-core machine has 2 threads, 1.14's has 1: ``--pool 1`` runs the race of
+one-thread seeds under 1.16 as it runs under 1.14.
+
 ``exact --log DIR`` (thirtieth session) also writes each HiGHS MIP's own log to ``DIR`` and, after
 the run, one JSON line per MIP to ``DIR/phases.jsonl``: when it started (seconds into the run), its
 size, its presolve time, when its first node line was printed (HiGHS's clock: presolve and the
@@ -66,6 +71,17 @@ def _parallel_mips() -> None:
         h.setOptionValue("threads", 2)
 
     _on_mips(parallel)
+
+
+def _make_pool(threads: int) -> None:
+    """HiGHS's thread pool of this process, made now with ``threads`` threads."""
+    highspy.Highs.resetGlobalScheduler(True)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("threads", threads)
+    h.addVar(0.0, 1.0)
+    if h.run() != highspy.HighsStatus.kOk:
+        raise SystemExit(f"--pool {threads}: HiGHS refused that thread count")
 
 
 def _export(directory: Path, tag: str) -> list:
@@ -178,6 +194,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, help="exact: JSON lines appended here")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/highs_models"), help="export: where the models go")
     ap.add_argument("--model", type=Path, help="solve: an exported .mps file")
+    ap.add_argument("--pool", type=int, help="exact: HiGHS's thread pool made first with this many threads")
     ap.add_argument("--log", type=Path, help="exact: each HiGHS MIP's log and DIR/phases.jsonl go here")
     args = ap.parse_args(argv)
     if args.command == "solve":
@@ -198,7 +215,10 @@ def main(argv=None) -> int:
     if args.budget != "per_slot":
         ap.error("exact runs the per-slot instances (probe_exact_lean_root.run)")
     from probe_exact_lean_root import run
-    arm = "highspy-" + highspy.Highs().version() + ("-parallel" if args.parallel else "")
+    if args.pool is not None:
+        _make_pool(args.pool)
+    arm = ("highspy-" + highspy.Highs().version() + ("-parallel" if args.parallel else "")
+           + (f"-pool{args.pool}" if args.pool is not None else ""))
     logs = None
     if args.log is not None:
         args.log.mkdir(parents=True, exist_ok=True)
