@@ -339,6 +339,45 @@ def test_a_plan_of_two_utilities(tiny, tmp_path):
         _tiny_plan(utilities=["nope"])
 
 
+def test_a_plan_that_also_counts_the_last_chunks_first_splats(tiny, tmp_path):
+    """--last-chunk whole,prefix: l3gs and l3gs-noseg run once per value in experiment 1 (their
+    prefix records tagged ``+prefix``), everything else once; the whole-chunk records are those of
+    the plain plan, and the prefix runs stay feasible schedules below the exact ceiling."""
+    kw = dict(traces=["lumos-throughput-low-47"], ablations=[], utilities=["eq1", "visibility", "counterfactual"])
+    plan = _tiny_plan(last_chunks=["whole", "prefix"], **kw)
+    plain = _tiny_plan(**kw)
+    ids = [t.record_id for t in plan.tasks()]
+    extra = sorted(set(ids) - {t.record_id for t in plain.tasks()})
+    assert all(i.endswith("+prefix") for i in extra) and len(extra) == len(set(ids)) - len(plain.tasks())
+    assert {i.split("/")[-2] for i in extra} == {"l3gs", "l3gs-noseg"}
+    assert not any("counterfactual]+prefix" in i for i in ids)   # (it values whole chunks)
+    assert any("counterfactual" in n for n in plan.notes)
+    assert plan.to_dict()["last_chunks"] == ["whole", "prefix"] and "last_chunks" not in plain.to_dict()
+    only_l3gs = _tiny_plan(last_chunks=["whole", "prefix"], methods=["l3gs", "sort"], utilities=["visibility"],
+                           traces=["lumos-throughput-low-47"])
+    assert not any("+prefix" in t.record_id for t in only_l3gs.tasks() if t.role != "main")   # ablations: whole
+    runs = run_experiments(_tiny_plan(last_chunks=["whole", "prefix"], methods=["l3gs", "sort"],
+                                      traces=["lumos-throughput-low-47"], ablations=[]),
+                           tmp_path / "lc", cache_dir=tiny["root"] / "cache", progress=False)
+    got = {r["record_id"]: r for r in map(json.loads, runs.read_text().splitlines())}
+    want = {r["record_id"]: r for r in tiny["records"]}
+    prefix = [r for r in got.values() if r["record_id"].endswith("+prefix")]
+    assert [r["method"] for r in prefix] == ["l3gs+prefix"] and prefix[0]["last_chunk"] == "prefix"
+    for rid, r in got.items():
+        if rid in want and r["kind"] == "sim":
+            assert r["ssim_per_s"] == want[rid]["ssim_per_s"] and r["last_chunk"] == "whole", rid
+    ceiling = next(r for r in got.values() if r["kind"] == "ceiling" and r["variant"] == "layered")
+    assert prefix[0]["utility_sum"] <= ceiling["objective"] * (1 + 1e-9) + 1e-9
+    assert prefix[0]["schedule_violations"] == []
+    summary = summarize(list(got.values()))
+    assert summary["methods"]["l3gs+prefix"]["last_chunk"] == "prefix"
+    assert set(summary["utilities"]["by_utility"]) == {"eq1", "eq1+prefix"}
+    with pytest.raises(ExperimentError, match=r"^last_chunks\[1\]: 'bogus' is not one of whole, prefix$"):
+        _tiny_plan(last_chunks=["whole", "bogus"])
+    with pytest.raises(ExperimentError, match=r"^last_chunks: prefix applies to l3gs and l3gs-noseg only"):
+        _tiny_plan(last_chunks=["prefix"], methods=["sort"])
+
+
 def test_plan_fidelity_and_its_report_section(tiny, tmp_path):
     from l3gs_opt.experiments.run import plan_fidelity
 

@@ -89,7 +89,7 @@ def test_empty_traces(tmp_path, capsys, monkeypatch, traces, message):
 
 @pytest.mark.parametrize("option, what", [
     ("--ablations", "condition"), ("--ablation-methods", "method"), ("--methods", "method"),
-    ("--paths", "path"), ("--variants", "variant"), ("--utilities", "utility"),
+    ("--paths", "path"), ("--variants", "variant"), ("--utilities", "utility"), ("--last-chunk", "value"),
 ])
 @pytest.mark.parametrize("text", ["", ","])
 def test_empty_lists(tmp_path, capsys, option, what, text):

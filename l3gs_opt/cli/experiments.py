@@ -88,6 +88,7 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
              if not (name == "ablations" and args.ablations is not None and args.ablations.strip() == "none")}
     if "ablations" not in lists:   # the one way to ask for no ablations (an empty list is refused)
         lists["ablations"] = []
+    lists["last_chunks"] = _list(args.last_chunk, "--last-chunk", "value")
     check_executor(args.executor, args.jobs, args.address)   # before the plan builds anything
     sizes = _sizes(args.sizes)
     scenes = None
@@ -192,5 +193,9 @@ def register(subparsers) -> None:
     p.add_argument("--utilities", default=None, metavar="A,B",
                    help="comma-separated splat utilities; every method that schedules by a utility runs once per "
                         "utility (default eq1; e.g. eq1,visibility)")
+    p.add_argument("--last-chunk", default=None, metavar="A,B",
+                   help="what l3gs and l3gs-noseg count of each slot's last chunk, as simulate --last-chunk: whole "
+                        "(default), prefix, or whole,prefix (each runs once per value; ablations and other methods: "
+                        "whole)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_experiments)

@@ -414,7 +414,7 @@ def _record_options(parser: argparse.ArgumentParser) -> None:
 #: Library fields whose command-line option has another name (field -> the option's ``dest``).
 FIELD_OPTIONS = {"fov_deg": "fov", "fov_x_deg": "fov", "time_limit_s": "time_limit",
                  "ceiling_time_limit_s": "time_limit", "ceiling_check_s": "check_time", "window_s": "window",
-                 "alignment": "align", "num_splats": "splats", "n_views": "views"}
+                 "alignment": "align", "num_splats": "splats", "n_views": "views", "last_chunks": "last_chunk"}
 _LEADING_FIELD = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?=[:\[ ]|$)")
 
 

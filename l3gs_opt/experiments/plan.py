@@ -63,6 +63,8 @@ def truth_utility(utility: str) -> str:
 
 #: Methods that never look at a prediction: their ablation runs would repeat the plain one.
 _PREDICTION_FREE = ("sort", "preload")
+#: Methods whose per-slot MCKP can count the slot's last chunk by its first splats.
+PREFIX_METHODS = ("l3gs", "l3gs-noseg")
 #: Baselines of the headline (the paper's L3GS against the other delivery schemes).
 BASELINES = ("sort", "separate", "l3gs-noseg")
 _CLASSES = ("low", "mid", "high")
@@ -234,23 +236,32 @@ class Task:
     role: str = "ceiling"
     #: The splat utility the method schedules by (a ceiling's: the utility it is the optimum of).
     utility: str = DEFAULT_UTILITY
+    #: What the per-slot MCKP of ``l3gs`` / ``l3gs-noseg`` counts of the slot's last chunk
+    #: (``SimConfig.last_chunk``); ``whole`` for every other method and for ceilings.
+    last_chunk: str = "whole"
 
     @property
     def record_id(self) -> str:
         what = "ceiling" if self.kind == "ceiling" else f"{self.method}/{self.ablation}"
         # eq1 records keep the ids they had before utilities were named (their runs still resume)
-        tag = "" if self.utility == DEFAULT_UTILITY else f"[{self.utility}]"
+        tag = ("" if self.utility == DEFAULT_UTILITY else f"[{self.utility}]") + self._chunk_tag
         return f"{self.scene}/{self.variant}/{self.trace}@{self.start_s}/{self.path}/{what}{tag}"
 
     @property
     def label(self) -> str:
-        """The method as reports show it: ``l3gs``, or ``l3gs[visibility]`` for another utility."""
-        return self.method if self.utility == DEFAULT_UTILITY else f"{self.method}[{self.utility}]"
+        """The method as reports show it: ``l3gs``, ``l3gs[visibility]`` for another utility,
+        ``l3gs[visibility]+prefix`` when the slot's last chunk counts by its first splats."""
+        return (self.method if self.utility == DEFAULT_UTILITY else f"{self.method}[{self.utility}]") + self._chunk_tag
+
+    @property
+    def _chunk_tag(self) -> str:
+        # (whole-chunk records keep the ids they had before the option existed)
+        return "" if self.last_chunk == "whole" else f"+{self.last_chunk}"
 
     @property
     def group(self) -> tuple:
         """Records sharing one :class:`~l3gs_opt.simulator.simulation.Simulation` (same bundle, link, viewer, config)."""
-        return (self.scene, self.variant, self.trace, self.start_s, self.path, self.ablation)
+        return (self.scene, self.variant, self.trace, self.start_s, self.path, self.ablation, self.last_chunk)
 
 
 @dataclass(frozen=True)
@@ -295,6 +306,11 @@ class ExperimentPlan:
         utility runs once per utility; the others (``sort``, ``preload``) once. Each utility's
         records are compared with the ceiling of its own values (a held-aware utility's: those of
         ``visibility``, its held-free base), so utilities are never summed together.
+    last_chunks : tuple of str
+        What ``l3gs`` and ``l3gs-noseg`` count of each slot's last chunk
+        (:data:`~l3gs_opt.simulator.last_chunk.LAST_CHUNKS`): each runs once per value in
+        experiment 1 (``prefix`` only with a utility that values splats, not whole chunks, and not
+        on ``distill``); every other method, the ablations and the ceilings count whole chunks.
     """
 
     scenes: tuple
@@ -317,6 +333,7 @@ class ExperimentPlan:
     quick: bool = False
     notes: tuple = ()
     utilities: tuple = (DEFAULT_UTILITY,)
+    last_chunks: tuple = ("whole",)
 
     def windows(self) -> list[tuple[TraceSpec, int]]:
         return [(tr, int(s)) for tr, starts in zip(self.traces, self.starts) for s in starts]
@@ -335,7 +352,11 @@ class ExperimentPlan:
                         for cond in conds:
                             for m, v in pairs:
                                 for u in self.method_utilities(m, v):
-                                    sims.append(Task("sim", sc.name, v, tr.name, start, p.name, m, cond, role, u))
+                                    # (the ablations are about predictions: whole chunks only)
+                                    chunks = self.method_last_chunks(m, v, u) if role == "main" else ("whole",)
+                                    for lc in chunks:
+                                        sims.append(Task("sim", sc.name, v, tr.name, start, p.name, m, cond, role,
+                                                         u, lc))
                     variants = [v for v in _VARIANT_ORDER if any(t.variant == v for t in sims)]
                     truths = list(dict.fromkeys(truth_utility(t.utility) for t in sims))
                     out += [Task("ceiling", sc.name, v, tr.name, start, p.name, utility=u)
@@ -356,22 +377,40 @@ class ExperimentPlan:
         spec = method_spec(method, representation=REPRESENTATION[variant], variant=variant)
         return self.utilities if spec.order == "utility" else (DEFAULT_UTILITY,)
 
-    def config(self, ablation: str = "none"):
+    def method_last_chunks(self, method: str, variant: str, utility: str) -> tuple:
+        """What ``method`` counts of the slot's last chunk on ``variant`` with ``utility``: the plan's
+        values for ``l3gs`` and ``l3gs-noseg`` (``prefix`` where it can run: per-splat values, no
+        ``distill`` forms), else ``whole``."""
+        if method not in PREFIX_METHODS:
+            return ("whole",)
+        return tuple(lc for lc in self.last_chunks if lc == "whole" or _splat_valued(utility, variant)) or ("whole",)
+
+    def config(self, ablation: str = "none", last_chunk: str = "whole"):
         from l3gs_opt.simulator.simulation import SimConfig
 
         return SimConfig(width=self.width, height=self.height, samples_per_slot=self.samples_per_slot,
-                         **ABLATIONS[ablation])
+                         last_chunk=last_chunk, **ABLATIONS[ablation])
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         if tuple(d["utilities"]) == (DEFAULT_UTILITY,):
             del d["utilities"]   # plans recorded before utilities had names still resume
+        if tuple(d["last_chunks"]) == ("whole",):
+            del d["last_chunks"]   # (likewise)
         for scene in d["scenes"]:
             # Written only when set, so plans recorded before the option existed still resume.
             if not scene["room_parts"]:
                 del scene["room_parts"]
         d["schema"] = "l3gs-opt/experiments-plan@1"
         return json.loads(json.dumps(d))
+
+
+def _splat_valued(utility: str, variant: str) -> bool:
+    """Whether ``prefix`` can count a chunk's first splats: ``utility`` values splats (not whole
+    chunks) and the bundle's units have one form (``distill`` splits each splat in two)."""
+    from l3gs_opt.pipeline.utilities import SplatUtility, get_utility
+
+    return variant != "distill" and type(get_utility(utility)).chunk_values is SplatUtility.chunk_values
 
 
 def _starts(trace: TraceSpec, count: int, window_s: int, seed: int) -> tuple[int, ...]:
@@ -401,7 +440,8 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
               ablation_methods: Sequence[str] | None = None, width: int | None = None, height: int | None = None,
               samples_per_slot: int = 2, ceiling_time_limit_s: float | None = None,
               ceiling_check_s: float | None = None, schedule=None,
-              seed: int = 0, utilities: Sequence[str] | None = None) -> ExperimentPlan:
+              seed: int = 0, utilities: Sequence[str] | None = None,
+              last_chunks: Sequence[str] | None = None) -> ExperimentPlan:
     """The plan of a run; the same arguments always give the same plan (seeded window starts).
 
     Defaults (``quick``: the README's demo, <= 15 min on 2 cores at low load): one 8k-splat room
@@ -535,13 +575,30 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
             get_utility(u)
         except UtilityNameError as exc:
             raise ExperimentError("utilities", str(exc), i) from None
+    from l3gs_opt.simulator.last_chunk import LAST_CHUNKS
+
+    chosen_chunks = tuple(last_chunks) if last_chunks is not None else ("whole",)
+    if not chosen_chunks or len(set(chosen_chunks)) != len(chosen_chunks):
+        raise ExperimentError("last_chunks", "need at least one value, each once")
+    for i, lc in enumerate(chosen_chunks):
+        if lc not in LAST_CHUNKS:
+            raise ExperimentError("last_chunks", f"{lc!r} is not one of {', '.join(LAST_CHUNKS)}", i)
+    if any(lc != "whole" for lc in chosen_chunks):
+        runs = [(m, v) for m, v in chosen if m in PREFIX_METHODS]
+        if not runs:
+            raise ExperimentError("last_chunks", f"{', '.join(c for c in chosen_chunks if c != 'whole')} applies "
+                                                 f"to {' and '.join(PREFIX_METHODS)} only, and neither runs")
+        for u in chosen_utilities:
+            if not _splat_valued(u, "layered"):
+                notes.append(f"last chunk: utility {u} values whole chunks; its runs count whole chunks only")
     plan = ExperimentPlan(scenes=scenes, variants=variants, traces=trace_specs, starts=start_points,
                           window_s=window_s, paths=tuple(path_specs), methods=tuple(chosen),
                           ablations=tuple(conds), ablation_methods=tuple(abl), variant_methods=tuple(var_methods),
                           width=int(w), height=int(h), samples_per_slot=samples_per_slot,
                           ceiling_time_limit_s=float(ceiling_time_limit_s), ceiling_check_s=float(ceiling_check_s),
                           schedule=dict(schedule), seed=seed,
-                          quick=bool(quick), notes=tuple(notes), utilities=chosen_utilities)
+                          quick=bool(quick), notes=tuple(notes), utilities=chosen_utilities,
+                          last_chunks=chosen_chunks)
     plan.config()   # validates width, height
     plan.tasks()    # no duplicate records
     return plan

@@ -78,6 +78,7 @@ def _by_utility(methods: dict) -> dict:
         if v.get("method_name", label) != "l3gs":
             continue
         u = v.get("utility", "eq1")
+        lc = v.get("last_chunk", "whole")
         row: dict[str, Any] = {"ssim_mean": v["ssim_mean"], "ssim_first5": v["ssim_first5"], "baselines": {}}
         for b in BASELINES:
             for key in dict.fromkeys([b, f"{b}[{u}]" if u != "eq1" else b]):
@@ -97,7 +98,7 @@ def _by_utility(methods: dict) -> dict:
             row["vs_mean_of_paper_baselines_pct"] = _mean(paper) if paper else None
             row["matches_every_baseline"] = all(b["l3gs_vs_pct"] >= 0 for b in bs)
             row["beats_every_baseline_first5"] = all(b["l3gs_vs_first5_pct"] > 0 for b in bs)
-        out[u] = row
+        out[u if lc == "whole" else f"{u}+{lc}"] = row   # (baselines: as they ran, whole chunks)
     if out:
         best = max(out, key=lambda k: out[k]["ssim_mean"])
         out = {"best": best, "by_utility": out}
@@ -130,6 +131,7 @@ def summarize(records: Sequence[dict]) -> dict:
         methods[m] = {"variant": rs[0]["variant"], "runs": len(rs), "ssim_mean": _mean(means),
                       "ssim_first5": float(np.mean(curve[:FIRST_S])),
                       "utility": rs[0].get("utility", "eq1"), "method_name": rs[0].get("method_name", m),
+                      "last_chunk": rs[0].get("last_chunk", "whole"),
                       "ssim_std": float(np.std(means)) if len(means) > 1 else 0.0,
                       "ssim_over_time": [float(v) for v in curve],
                       "psnr_mean": _mean(r["psnr_mean"] for r in rs if r.get("psnr_mean") is not None)}
@@ -287,16 +289,17 @@ def _slant_labels(ax) -> None:
 
 
 def _plot_over_time(curves: dict, path: Path, title: str) -> None:
-    """One line per method; a method's utilities share its colour and differ by line style."""
+    """One line per method; a method's utilities (and last-chunk counts) share its colour and
+    differ by line style."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9.0, 4.2))
     names = list(dict.fromkeys(v.get("method_name", k) for k, v in curves.items()))
-    utilities = list(dict.fromkeys(v.get("utility", "eq1") for v in curves.values()))
+    kinds = list(dict.fromkeys((v.get("utility", "eq1"), v.get("last_chunk", "whole")) for v in curves.values()))
     styles = ("-", "--", ":", "-.")
     for label, v in curves.items():
         y = v["ssim_over_time"]
         colour = f"C{names.index(v.get('method_name', label)) % 10}"
-        style = styles[utilities.index(v.get("utility", "eq1")) % len(styles)]
+        style = styles[kinds.index((v.get("utility", "eq1"), v.get("last_chunk", "whole"))) % len(styles)]
         ax.plot(np.arange(1, len(y) + 1), y, color=colour, ls=style, lw=1.6,
                 label=f"{label} (mean {v['ssim_mean']:.3f})")
     ax.set_xlabel("time (s)")
@@ -498,7 +501,8 @@ def _utility_lines(u: dict) -> list[str]:
     """The section comparing l3gs by each splat utility with the baselines."""
     L = ["### l3gs by splat utility", "",
          "Each row: `l3gs` scheduling by one utility against each baseline (as it ran by default, and the "
-         "baselines that also schedule by a utility with the same one). First 5 s: mean SSIM of slots 1-5. "
+         "baselines that also schedule by a utility with the same one); `+prefix`: the slot's last chunk counted "
+         "by its first splats (`--last-chunk`), against the same baselines. First 5 s: mean SSIM of slots 1-5. "
          f"Paper: {PAPER['headline']} First 5 s: {PAPER['first5']}.", "",
          "| utility | l3gs mean SSIM | first 5 s | vs each baseline (mean SSIM) | vs mean of baselines | "
          "vs mean of the paper's (sort, separate) | matches every baseline | beats every baseline in the first 5 s |",

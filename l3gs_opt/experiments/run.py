@@ -238,6 +238,7 @@ def _sim_record(task: Task, result, inst, base: dict, *, preload: bool = False) 
     rec = dict(base)
     rec.update({
         "kind": "sim", "method": task.label, "method_name": task.method, "utility": task.utility,
+        "last_chunk": task.last_chunk,
         "solver": s.get("solver"), "ablation": task.ablation,
         "role": task.role, "view": s.get("view"), "units": s.get("units"), "representation": s.get("representation"),
         "ssim_mean": s["ssim_mean"], "ssim_per_s": [float(v) for v in s["ssim_per_s"]], "psnr_mean": s.get("psnr_mean"),
@@ -563,7 +564,7 @@ class _Runner:
         if sim is None:
             self.sims.clear()   # groups run one after another: keep one simulation's caches
             # Reference renders are shared by content across simulations (sim_render's cache).
-            sim = self.sims[task.group] = Simulation(bundle, poses, bandwidth, config=plan.config(task.ablation),
+            sim = self.sims[task.group] = Simulation(bundle, poses, bandwidth, config=plan.config(task.ablation, task.last_chunk),
                                                      reference=str(sc.teacher), info=info)
         result = sim.run(task.method, utility=task.utility)
         spec = method_spec(task.method, representation=bundle.manifest["representation"], variant=task.variant)
