@@ -340,7 +340,7 @@ def test_a_plan_of_two_utilities(tiny, tmp_path):
 
 
 def test_a_plan_that_also_counts_the_last_chunks_first_splats(tiny, tmp_path):
-    """--last-chunk whole,prefix: l3gs and l3gs-noseg run once per value in experiment 1 (their
+    """--last-chunk whole,prefix: l3gs runs once per value in experiment 1 (its
     prefix records tagged ``+prefix``), everything else once; the whole-chunk records are those of
     the plain plan, and the prefix runs stay feasible schedules below the exact ceiling."""
     kw = dict(traces=["lumos-throughput-low-47"], ablations=[], utilities=["eq1", "visibility", "counterfactual"])
@@ -349,7 +349,7 @@ def test_a_plan_that_also_counts_the_last_chunks_first_splats(tiny, tmp_path):
     ids = [t.record_id for t in plan.tasks()]
     extra = sorted(set(ids) - {t.record_id for t in plain.tasks()})
     assert all(i.endswith("+prefix") for i in extra) and len(extra) == len(set(ids)) - len(plain.tasks())
-    assert {i.split("/")[-2] for i in extra} == {"l3gs", "l3gs-noseg"}
+    assert {i.split("/")[-2] for i in extra} == {"l3gs"}
     assert not any("counterfactual]+prefix" in i for i in ids)   # (it values whole chunks)
     assert any("counterfactual" in n for n in plan.notes)
     assert plan.to_dict()["last_chunks"] == ["whole", "prefix"] and "last_chunks" not in plain.to_dict()
@@ -374,7 +374,7 @@ def test_a_plan_that_also_counts_the_last_chunks_first_splats(tiny, tmp_path):
     assert set(summary["utilities"]["by_utility"]) == {"eq1", "eq1+prefix"}
     with pytest.raises(ExperimentError, match=r"^last_chunks\[1\]: 'bogus' is not one of whole, prefix$"):
         _tiny_plan(last_chunks=["whole", "bogus"])
-    with pytest.raises(ExperimentError, match=r"^last_chunks: prefix applies to l3gs and l3gs-noseg only"):
+    with pytest.raises(ExperimentError, match=r"^last_chunks: prefix applies to l3gs only"):
         _tiny_plan(last_chunks=["prefix"], methods=["sort"])
 
 

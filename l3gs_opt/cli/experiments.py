@@ -194,8 +194,7 @@ def register(subparsers) -> None:
                    help="comma-separated splat utilities; every method that schedules by a utility runs once per "
                         "utility (default eq1; e.g. eq1,visibility)")
     p.add_argument("--last-chunk", default=None, metavar="A,B",
-                   help="what l3gs and l3gs-noseg count of each slot's last chunk, as simulate --last-chunk: whole "
-                        "(default), prefix, or whole,prefix (each runs once per value; ablations and other methods: "
-                        "whole)")
+                   help="what l3gs counts of each slot's last chunk, as simulate --last-chunk: whole (default), prefix, "
+                        "or whole,prefix (it runs once per value; ablations and other methods: whole)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_experiments)

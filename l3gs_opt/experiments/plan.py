@@ -63,8 +63,11 @@ def truth_utility(utility: str) -> str:
 
 #: Methods that never look at a prediction: their ablation runs would repeat the plain one.
 _PREDICTION_FREE = ("sort", "preload")
-#: Methods whose per-slot MCKP can count the slot's last chunk by its first splats.
-PREFIX_METHODS = ("l3gs", "l3gs-noseg")
+#: Methods the plan runs with the slot's last chunk counted by its first splats. ``l3gs-noseg``
+#: can too (``simulate --last-chunk``), but its one object's layers go in order whatever the
+#: MCKP counts: its prefix records equalled its whole-chunk ones in every quick run (6 of 6,
+#: 2026-12-03), so the plan does not spend renders on them.
+PREFIX_METHODS = ("l3gs",)
 #: Baselines of the headline (the paper's L3GS against the other delivery schemes).
 BASELINES = ("sort", "separate", "l3gs-noseg")
 _CLASSES = ("low", "mid", "high")
@@ -307,7 +310,7 @@ class ExperimentPlan:
         records are compared with the ceiling of its own values (a held-aware utility's: those of
         ``visibility``, its held-free base), so utilities are never summed together.
     last_chunks : tuple of str
-        What ``l3gs`` and ``l3gs-noseg`` count of each slot's last chunk
+        What ``l3gs`` counts of each slot's last chunk
         (:data:`~l3gs_opt.simulator.last_chunk.LAST_CHUNKS`): each runs once per value in
         experiment 1 (``prefix`` only with a utility that values splats, not whole chunks, and not
         on ``distill``); every other method, the ablations and the ceilings count whole chunks.
@@ -379,7 +382,7 @@ class ExperimentPlan:
 
     def method_last_chunks(self, method: str, variant: str, utility: str) -> tuple:
         """What ``method`` counts of the slot's last chunk on ``variant`` with ``utility``: the plan's
-        values for ``l3gs`` and ``l3gs-noseg`` (``prefix`` where it can run: per-splat values, no
+        values for :data:`PREFIX_METHODS` (``prefix`` where it can run: per-splat values, no
         ``distill`` forms), else ``whole``."""
         if method not in PREFIX_METHODS:
             return ("whole",)
@@ -587,7 +590,7 @@ def make_plan(*, quick: bool = False, scenes: Sequence[SceneSpec] | None = None,
         runs = [(m, v) for m, v in chosen if m in PREFIX_METHODS]
         if not runs:
             raise ExperimentError("last_chunks", f"{', '.join(c for c in chosen_chunks if c != 'whole')} applies "
-                                                 f"to {' and '.join(PREFIX_METHODS)} only, and neither runs")
+                                                 f"to {' and '.join(PREFIX_METHODS)} only, which does not run")
         for u in chosen_utilities:
             if not _splat_valued(u, "layered"):
                 notes.append(f"last chunk: utility {u} values whole chunks; its runs count whole chunks only")
