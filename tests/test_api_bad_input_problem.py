@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import warnings
 
+import highspy
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -228,10 +229,13 @@ def test_a_threads_option_is_honoured_after_other_solves_in_the_process():
     # from whatever pool this test process has, on any machine.
     inst = layered()
     best = L.solve(inst, "brute").objective
-    for threads in (1, 2, 3, None):
-        options = {} if threads is None else {"threads": threads}
-        sol = L.solve(inst, "ilp", backend="highs", options=options)
-        assert (sol.status, sol.objective) == ("optimal", best), threads
+    try:
+        for threads in (1, 2, 3, None):
+            options = {} if threads is None else {"threads": threads}
+            sol = L.solve(inst, "ilp", backend="highs", options=options)
+            assert (sol.status, sol.objective) == ("optimal", best), threads
+    finally:   # the next solve of this process makes the default pool again, as before this test
+        highspy.Highs.resetGlobalScheduler(True)
 
 
 # -- C6: a time limit beyond float's range -----------------------------------------------------------------
