@@ -30,6 +30,14 @@ from ..linear import LinearModel
 from . import BackendResult, mapped_status
 
 _KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
+#: CBC command-line settings of every run. ``scaling off``: Clp's own scaling rescales the
+#: objective and undoes the power-of-two prescale of :func:`~l3gs_opt.models.backends.solve_model`
+#: (largest coefficient ~2**20 against an absolute 1e-7 tolerance): a Problem III model with
+#: coefficients 5.2e5 and 5.1e-7 (utilities 1024 and 1e-9, the 1024 out of reach) came back
+#: "optimal" at 0 with bound 0, the optimum being 1e-9 (tests/test_stiff.py; HiGHS and CP-SAT
+#: found it). Without Clp's scaling it does too; J=20 T=10 instances ran the same (same objective,
+#: bound and time, 2026-12-03).
+CBC_ARGS = ("scaling off",)
 _RESULT = re.compile(r"^Result - (.*)$", re.M)
 _UPPER = re.compile(r"^Upper bound:\s+(\S+)", re.M)
 _VERSION = re.compile(r"^Version:\s+(\S+)", re.M)
@@ -96,7 +104,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
             # CBC binary is what makes the backend work on a fresh machine.
             warnings.simplefilter("ignore", DeprecationWarning)
             cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_limit_s, gapRel=0.0, gapAbs=0.0,
-                                    logPath=log_path, **kwargs)
+                                    logPath=log_path, options=list(CBC_ARGS), **kwargs)
         problem.solve(cmd)
         with open(log_path, encoding="utf-8", errors="replace") as fh:
             log = fh.read()
