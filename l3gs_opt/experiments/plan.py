@@ -311,7 +311,7 @@ class ExperimentPlan:
         ``visibility``, its held-free base), so utilities are never summed together.
     last_chunks : tuple of str
         What ``l3gs`` counts of each slot's last chunk
-        (:data:`~l3gs_opt.simulator.last_chunk.LAST_CHUNKS`): each runs once per value in
+        (:data:`~l3gs_opt.simulator.last_chunk.LAST_CHUNKS`): it runs once per value in
         experiment 1 (``prefix`` only with a utility that values splats, not whole chunks, and not
         on ``distill``); every other method, the ablations and the ceilings count whole chunks.
     """
