@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from l3gs_opt.errors import L3gsError
-from l3gs_opt.traces.bandwidth import (MAX_MBPS, MAX_TRACE_SAMPLES, MAX_VARIABILITY, BandwidthTrace, TraceError,
+from l3gs_opt.traces.bandwidth import (MAX_MBPS, MAX_TRACE_SAMPLES, MIN_MBPS, MAX_VARIABILITY, BandwidthTrace, TraceError,
                                        mbps_to_bytes, read_bandwidth_trace, synthetic_bandwidth)
 from l3gs_opt.traces.poses import (MAX_POSE_SAMPLES, PoseError, PoseTrace, read_camera_path, read_pose_log,
                                    synthetic_poses, write_camera_path)
@@ -61,6 +61,21 @@ def test_c9_synthetic_bandwidth_checks_the_type_of_numbers(kw, field):
     with pytest.raises(TraceError, match=rf"^{field} = .*: must be a number in ") as caught:
         synthetic_bandwidth(10, **kw)
     _one_line(caught.value)
+
+
+@pytest.mark.parametrize("mean", [5e-324, 1e-300, MIN_MBPS / 2])
+def test_a_target_mean_below_one_bit_a_second_is_refused(mean):
+    # A subnormal target used to be accepted: the factor left float64's normal range, the scaled
+    # mean missed the target and every slot carried 0 bytes, silently.
+    trace = read_bandwidth_trace(TRACE)
+    with pytest.raises(TraceError, match=r"^mbps = .* \(the target mean, Mbit/s\): .*\[1e-06, 1e\+07\]") as caught:
+        trace.scaled(mean)
+    _one_line(caught.value)
+    with pytest.raises(TraceError, match=r"^mean_mbps = .*: must be a number in \[1e-06, "):
+        synthetic_bandwidth(10, mean_mbps=mean)
+    scaled, factor = trace.scaled(MIN_MBPS)   # the floor itself is a trace with that mean
+    assert math.isclose(float(scaled.mbps.mean()), MIN_MBPS, rel_tol=MEAN_RTOL)
+    assert math.isclose(float(synthetic_bandwidth(10, mean_mbps=MIN_MBPS).mbps.mean()), MIN_MBPS, rel_tol=MEAN_RTOL)
 
 
 @pytest.mark.parametrize("seed", [-1, 1.5, "a", True, None, np.int64(-2)])

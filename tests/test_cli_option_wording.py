@@ -55,7 +55,8 @@ def test_simulate_fetch_and_tables_name_the_option(capsys, world, tmp_path):
                         (("--fov", "nan"), "error: --fov: nan: "),
                         (("--bandwidth-bias", "-7"), "error: --bandwidth-bias: -7.0: "),
                         (("--time-limit", "-7"), "error: --time-limit: -7.0: "),
-                        (("--mbps", "-7"), "error: --mbps = -7.0 (the target mean, Mbit/s): ")]:
+                        (("--mbps", "-7"), "error: --mbps = -7.0 (the target mean, Mbit/s): "),
+                        (("--mbps", "1e-320"), "error: --mbps = 1e-320 (the target mean, Mbit/s): ")]:
         assert one_error_line(capsys, *sim, *extra).startswith(want)
     fetch = ("fetch", "http://127.0.0.1:9/", "--trace", "lumos-throughput-mid-11", "--path", world["log"],
              "--method", "sort", "--out", tmp_path / "f")

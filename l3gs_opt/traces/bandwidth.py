@@ -78,13 +78,17 @@ from l3gs_opt.input_files import read_text
 
 __all__ = ["TraceError", "AmbiguousTraceError", "BandwidthTrace", "bundled_traces", "read_bandwidth_trace",
            "mbps_to_bytes", "synthetic_bandwidth", "iter_lines", "TRACE_FORMATS", "detect_format", "write_mahimahi",
-           "MAHIMAHI_PACKET_BYTES", "MIN_AUTO_MAHIMAHI_LINES", "MAX_MBPS", "MAX_TRACE_SAMPLES", "MAX_TRACE_FILE_BYTES",
+           "MAHIMAHI_PACKET_BYTES", "MIN_AUTO_MAHIMAHI_LINES", "MIN_MBPS", "MAX_MBPS", "MAX_TRACE_SAMPLES", "MAX_TRACE_FILE_BYTES",
            "MAX_SLOT_BYTES", "MAX_VARIABILITY"]
 
 #: Largest throughput sample read (Mbit/s): 10 Tbit/s, ~5000 x the fastest 5G trace bundled. A
 #: larger value is a unit mistake or corruption; refusing it (rather than clipping it) keeps the
 #: link honest, and keeps one slot's bytes (1.25e12 per second) far below :data:`MAX_SLOT_BYTES`.
 MAX_MBPS = 1e7
+#: Smallest target mean a trace is scaled to (Mbit/s): one bit a second. A smaller target is a unit
+#: mistake (bits for Mbit); far below it the scale factor leaves float64's normal range (a
+#: subnormal target came back with a mean that missed it) and every slot carries 0 bytes.
+MIN_MBPS = 1e-6
 #: Most samples in a trace (after resampling to one per second): 11.6 days at 1 Hz.
 MAX_TRACE_SAMPLES = 10**6
 #: Largest trace file read (bytes): room for MAX_TRACE_SAMPLES CSV lines of ~30 characters.
@@ -149,12 +153,12 @@ class BandwidthTrace:
                                                                 error=_trace_error))
 
     def scaled(self, target_mean_mbps: float) -> tuple["BandwidthTrace", float]:
-        """The trace scaled so its mean is ``target_mean_mbps`` (Mbit/s, in (0, MAX_MBPS]); returns
-        it and the factor."""
+        """The trace scaled so its mean is ``target_mean_mbps`` (Mbit/s, in [MIN_MBPS, MAX_MBPS]);
+        returns it and the factor."""
         mean = float(self.mbps.mean())
-        if not (is_real(target_mean_mbps) and 0 < target_mean_mbps <= MAX_MBPS):
+        if not (is_real(target_mean_mbps) and MIN_MBPS <= target_mean_mbps <= MAX_MBPS):
             raise TraceError(f"mbps = {shown(target_mean_mbps)} (the target mean, Mbit/s): must be a positive "
-                             f"number <= {MAX_MBPS:g}")
+                             f"number in [{MIN_MBPS:g}, {MAX_MBPS:g}] (MIN_MBPS, MAX_MBPS)")
         if mean <= 0:
             raise TraceError(f"{self.name}: mean throughput is 0, cannot scale")
         factor = target_mean_mbps / mean
@@ -578,7 +582,7 @@ def synthetic_bandwidth(seconds: int = 60, mean_mbps: float = 11.8, *, variabili
     seconds : int
         Number of samples (s), 1 .. :data:`MAX_TRACE_SAMPLES` (the readers' limit).
     mean_mbps : float
-        Target mean throughput (Mbit/s), in (0, :data:`MAX_MBPS`].
+        Target mean throughput (Mbit/s), in [:data:`MIN_MBPS`, :data:`MAX_MBPS`].
     variability : float
         Standard deviation of the natural log of the throughput, in [0, :data:`MAX_VARIABILITY`]
         (0 gives a constant trace between outages).
@@ -598,8 +602,8 @@ def synthetic_bandwidth(seconds: int = 60, mean_mbps: float = 11.8, *, variabili
     """
     # The cap bounds the per-second Python loop below (~2 s at the cap) and the arrays it fills.
     seconds = check_count("seconds", seconds, high=MAX_TRACE_SAMPLES, error=_trace_error)
-    mean_mbps = check_number("mean_mbps", mean_mbps, lambda x: 0 < x <= MAX_MBPS,
-                             f"a number in (0, {MAX_MBPS:g}] Mbit/s (MAX_MBPS)", _trace_error)
+    mean_mbps = check_number("mean_mbps", mean_mbps, lambda x: MIN_MBPS <= x <= MAX_MBPS,
+                             f"a number in [{MIN_MBPS:g}, {MAX_MBPS:g}] Mbit/s (MIN_MBPS, MAX_MBPS)", _trace_error)
     # A documented cap rather than a finiteness check after exp: well below overflow (variability
     # ~100) one sample already carries nearly the whole trace, which no finite check would catch.
     variability = check_number("variability", variability, lambda x: 0 <= x <= MAX_VARIABILITY,
