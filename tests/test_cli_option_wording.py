@@ -78,7 +78,7 @@ def test_simulate_refuses_a_path_rate_it_would_not_read(capsys, world):
 
 
 @pytest.mark.parametrize("extra, want", [
-    (("--views", "-3"), "error: --views: -3 must be an integer in [1, 10,000]"),
+    (("--views", "-3"), "error: --views: -3: must be an integer in [1, 10000] (MAX_PATH_VIEWS)"),
     (("--width", "-7"), "error: --width"),
     (("--fov", "nan"), "error: --fov"),
 ])

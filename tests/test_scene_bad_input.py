@@ -73,13 +73,13 @@ def test_negative_seed_is_refused_by_name(capsys, tmp_path, scene_file):
 def test_views_beyond_the_limit_are_refused_before_any_work(capsys, tmp_path):
     line = one_error_line(capsys, "scene", "make", "--out", tmp_path / "m.ply", "--splats", 1000,
                           "--orbit", tmp_path / "o.json", "--views", MAX_PATH_VIEWS + 1)
-    assert line.startswith(f"error: --views: {MAX_PATH_VIEWS + 1} must be an integer in [1, ")
+    assert line.startswith(f"error: --views: {MAX_PATH_VIEWS + 1}: must be an integer in [1, ")
     assert "MAX_PATH_VIEWS" in line
     assert not (tmp_path / "m.ply").exists() and not (tmp_path / "o.json").exists()
     for path in (orbit_path, walk_path):
         with pytest.raises(CameraError, match="MAX_PATH_VIEWS"):
             path(MAX_PATH_VIEWS + 1, width=8, height=6)
-    with pytest.raises(CameraError, match=r"^count: 100000000 must be an integer in \[1, "):
+    with pytest.raises(CameraError, match=r"^count: 100000000: must be an integer in \[1, "):
         sample_cameras(random_scene(50), 100_000_000)
     assert len(orbit_path(3, width=8, height=6)) == 3
 

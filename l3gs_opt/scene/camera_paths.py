@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from l3gs_opt.checks import check_count
 from l3gs_opt.scene.cameras import Camera, CameraError, look_at
 from l3gs_opt.scene.procedural import ROOM_HALF, ROOM_HEIGHT
 
@@ -26,10 +27,8 @@ MAX_PATH_VIEWS = 10_000
 def check_views(n_views, field: str = "n_views") -> int:
     """``n_views`` as an int in ``[1, MAX_PATH_VIEWS]``, checked before any camera is built (camera
     paths here, sampled training cameras in :mod:`.camera_sampling`)."""
-    if isinstance(n_views, bool) or not isinstance(n_views, (int, np.integer)) or \
-            not 1 <= n_views <= MAX_PATH_VIEWS:
-        raise CameraError(f"{field}: {n_views!r} must be an integer in [1, {MAX_PATH_VIEWS:,}] (MAX_PATH_VIEWS)")
-    return int(n_views)
+    return check_count(field, n_views, high=MAX_PATH_VIEWS,
+                       error=lambda f, message: CameraError(f"{f}: {message} (MAX_PATH_VIEWS)"))
 
 
 def intrinsics_from_fov(width: int, height: int, fov_x_deg: float) -> dict:
