@@ -36,6 +36,8 @@ _LAZY = {
     "pipeline.fidelity": ["utility_fidelity", "FidelityReport"],
     "simulator.records": ["RunSummary"],
     "executors": ["run_tasks"],
+    # Compiles exact's numba kernels once per machine, off any solve's clock (scripts/setup.sh runs it).
+    "solvers.exact.warm": ["warm_up"],
     "bench.run": ["BenchError", "BenchTask", "run_bench", "read_records"],
     # One strict JSON serialiser and one JSONL record writer for every output (issue 19).
     "jsonout": ["OutputError", "JsonOutputError"],

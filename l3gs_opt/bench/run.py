@@ -27,6 +27,7 @@ from typing import Any, Callable, Iterable, Mapping
 from tqdm import tqdm
 
 from l3gs_opt.executors import EXECUTORS, run_tasks
+from l3gs_opt.solvers.exact.warm import warm_up
 from l3gs_opt.methods import solve
 from l3gs_opt.errors import L3gsError, SolveError
 from l3gs_opt.problem.evaluate import evaluate_objective, feasibility_violations
@@ -386,6 +387,9 @@ def _run_logged(tasks: list[BenchTask], log: RecordLog, existing: list[dict[str,
             bar.update(1)
             bar.set_postfix_str(f"{rec['method']} {rec['status']}", refresh=False)
 
+        # Compiled once here, off every record's clock: a forked worker's compile dies with it.
+        if todo:
+            warm_up()
         work = functools.partial(run_task, time_limit_s=time_limit_s, custom=custom)
         run_tasks(todo, work, lambda _task, rec: write(rec), jobs=jobs, executor=executor, address=address,
                   hard_limit_s=hard_limit(time_limit_s), failed=functools.partial(_killed_record, time_limit_s))

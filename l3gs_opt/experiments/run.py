@@ -64,6 +64,7 @@ import numpy as np
 
 from l3gs_opt.errors import L3gsError
 from l3gs_opt.executors import run_tasks
+from l3gs_opt.solvers.exact.warm import warm_up
 from l3gs_opt.jsonout import dumps
 from l3gs_opt.records import RecordLog, append_record
 
@@ -481,6 +482,7 @@ def _run_locked(plan: ExperimentPlan, out: Path, records: RecordLog, *, resume: 
                 for record in result:
                     write(record)
 
+            warm_up()   # exact's kernels (its ceiling) into numba's cache, off every record's clock
             run_tasks(list(groups.values()), functools.partial(_run_group, plan, str(cache)), write_group,
                       jobs=jobs, executor=executor, address=address, failed=_group_failed,
                       start_method="spawn")   # this process has rendered (numba and torch thread pools)

@@ -31,6 +31,7 @@ from l3gs_opt.problem.evaluate import trim_losing_layers
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
+from . import kernels
 from .lagrange import GapData, assignment_feasible, assignment_value, gap_data
 
 __all__ = ["first_fit", "slot_order", "anneal_schedule", "solve_anneal", "TEMP0_SHARE", "TEMP_FALL",
@@ -96,6 +97,25 @@ def _kernels():
     return _anneal_kernels
 
 
+def _warm() -> None:
+    # The arrays of a real (tiny) Problem A, passed as every call passes them (call_kernel), so
+    # the kernel compiles for their types: a round of no moves, like the calibration call.
+    data = gap_data(Instance(representation="layered", bandwidth=np.array([5, 5]), cost=np.array([[3, 4]]),
+                             utility=np.ones((2, 1, 2))))
+    call_kernel(_kernels(), np.arange(data.n, dtype=np.int64), data, 0, 1.0, 0.1, 0)
+
+
+kernels.register("anneal", _warm)
+
+
+def call_kernel(k, order: np.ndarray, data: GapData, moves: int, temp0: float, temp1: float, seed: int):
+    """One round of the compiled annealing (``k.anneal``) from ``order``: (order, value, assignment).
+    The one place its arguments are built, so :func:`_warm` compiles it for the types every call
+    passes."""
+    return k.anneal(order, data.cost, data.profit, data.allowed, data.lower, data.upper, bool(data.strict),
+                    data.budget.astype(np.int64), moves, temp0, temp1, WINDOW, seed)
+
+
 def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float | None = None,
                     rounds: int | None = None, seed: int = 0, moves: int | None = None,
                     patience: int | None = None) -> np.ndarray:
@@ -134,6 +154,9 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     fallback = np.full(n, -1, dtype=np.int64) if start is None else np.asarray(start, dtype=np.int64)
     if n == 0:
         return fallback
+    # The compile of a machine's first call counts against the deadline (it is never waited past).
+    if not kernels.ready("anneal", None if deadline is None else deadline - time.perf_counter()):
+        return fallback
     k = _kernels()
     if start is None:
         order = np.argsort(-(data.profit[:, 0] / data.cost), kind="stable").astype(np.int64)
@@ -144,11 +167,9 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     temp1 = temp0 / TEMP_FALL
     moves = min(MOVES_PER_CHUNK * n, MAX_MOVES) if moves is None else int(moves)
     best, best_val = fallback, assignment_value(data, fallback)
-    budget = data.budget.astype(np.int64)
     rate = None   # moves per second, measured by the rounds so far
     if deadline is not None:   # a round of no moves: the compiled code is loaded before the speed is measured
-        k.anneal(order, data.cost, data.profit, data.allowed, data.lower, data.upper, bool(data.strict), budget,
-                 0, temp0, temp1, WINDOW, 0)
+        call_kernel(k, order, data, 0, temp0, temp1, 0)
     r = stale = 0
     while (rounds is None or r < rounds) and (patience is None or stale < patience):
         size = moves
@@ -159,8 +180,7 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
             if left <= 0 or size < CALIBRATION_MOVES // 10:
                 break
         began = time.perf_counter()
-        order, _, assign = k.anneal(order, data.cost, data.profit, data.allowed, data.lower, data.upper,
-                                    bool(data.strict), budget, size, temp0, temp1, WINDOW, seed * 1000 + r)
+        order, _, assign = call_kernel(k, order, data, size, temp0, temp1, seed * 1000 + r)
         rate = size / max(time.perf_counter() - began, 1e-9)
         r += 1
         # Valued again exactly from the data: the kernel's running sum is only its guide.

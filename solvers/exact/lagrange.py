@@ -45,6 +45,7 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.presolve import presolve
 
 from .. import _mckp
+from . import kernels
 from . import pricing
 
 __all__ = ["ChunkItems", "GapData", "gap_data", "chunk_arrays", "Cover", "Multipliers", "LagrangeValue", "knapsack", "reduced_profits",
@@ -349,7 +350,8 @@ def knapsack(cost: np.ndarray, value: np.ndarray, capacity: int, *,
     """0-1 knapsack: (chosen positions, upper bound, optimal).
 
     Up to :data:`PRICING_MAX_ITEMS` items, the compiled depth-first search of :mod:`.pricing`
-    (its optimum; the callers add the round-off slack); when it is absent or gives up, the
+    (its optimum; the callers add the round-off slack); when it is absent, not compiled yet
+    (:mod:`.kernels`) or gives up, the
     single-slot branch-and-bound (its bound: the optimum plus its relative slack when optimal).
     Items with value <= 0 or cost > capacity are never chosen.
     """
@@ -358,7 +360,8 @@ def knapsack(cost: np.ndarray, value: np.ndarray, capacity: int, *,
         return np.zeros(0, dtype=np.int64), 0.0, True
     if int(cost[take].sum()) <= capacity:
         return take, math.fsum(value[take].tolist()), True
-    if pricing.available() and len(take) <= PRICING_MAX_ITEMS:
+    # (while the compiled search is still compiling, on a machine's first solve, bb takes its turn)
+    if pricing.available() and len(take) <= PRICING_MAX_ITEMS and kernels.ready("pricing"):
         chosen, best, done = pricing.solve_kp01_float(cost[take], value[take], int(capacity))
         if done:   # exact up to float round-off, which the callers' slack covers
             return take[chosen], best, True

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
+
 try:
     from numba import njit
 except ImportError:  # pragma: no cover - numba is a dependency; the caller falls back to bb
@@ -85,6 +87,14 @@ if njit is not None:
             for k in range(i + 1, n):
                 x[k] = False
             j = i + 1
+
+
+def _warm() -> None:
+    if available():
+        solve_kp01_float(np.array([3, 4, 5], np.int64), np.array([1.0, 2.0, 3.0]), 7)
+
+
+kernels.register("pricing", _warm)
 
 
 def solve_kp01_float(cost: np.ndarray, value: np.ndarray, capacity: int, *, max_nodes: int = MAX_NODES

@@ -73,12 +73,14 @@ from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
 from l3gs_opt.stop import expired
 
+from . import kernels
 from .clock import Clock
 from .colgen import ColumnPool, Master, column_generation
 from .covers import separate_covers
 from .sides import run_sides
 from .starts import best_start
 from .anneal import anneal_schedule
+from .warm import warm_up
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
 from .repair import level_repair
@@ -163,6 +165,9 @@ ANNEAL_SHARE, ANNEAL_ROUNDS = 0.07, 12
 #: The annealing stops early when this many rounds in a row find nothing better (most J=20 seeds
 #: reach their best in the first two rounds of about 0.35 s, from the fourteen runs of 4.2 s each).
 ANNEAL_PATIENCE = 4
+#: Seconds the annealing waits at least for its kernel (:mod:`.kernels`): loading
+#: it from numba's disk cache, with numba's import, takes ~0.25 s on our 2-core box.
+KERNEL_LOAD_S = 1.0
 #: The LP neighbourhoods are left out after the annealing only where n * T is at most this (J=20:
 #: 4,800): at J=50 (12,000; the root column generation does not converge in its share and the gap
 #: is mostly the schedule) the run with them ended higher than two runs without on 6 of the 8
@@ -470,6 +475,12 @@ def solve_exact(instance: Instance, *, slot: int | None = None, time_limit_s: fl
         layered ones with the cumulative budget to :func:`.cumulative.solve_cumulative`.
     """
     started = time.perf_counter()
+    # Compiled (or loaded from numba's disk cache) beside the solve; a solve without a time limit
+    # may wait for them (.kernels). The pricing knapsack is needed first.
+    if time_limit_s is None:
+        warm_up()
+    else:
+        kernels.prepare(*kernels.KERNELS)
     if not instance.layered:
         # Problems II/IV: branch-and-price over per-object paths (solvers/exact/separate.py).
         from .separate import solve_separate
@@ -514,6 +525,7 @@ class _Search(Clock):
         self.allowed0 = data.allowed
         self.trace: list[tuple[float, float, float]] = []
         self.hit_limit = False
+        self.anneal_skipped = False
         self.details: dict[str, Any] = {"items": data.n, "slots": data.T, "presolve": dict(data.stats)}
         self.pool = ColumnPool(data)
         self.rows: list[tuple[int, int]] = []
@@ -582,12 +594,21 @@ class _Search(Clock):
         self.z = assignment_value(data, self.assign)
         self.details["after_local_search"] = self.z
         if self.anneals and data.n:
-            deadline = None if self.deadline is None else \
-                min(self.deadline, time.perf_counter() + ANNEAL_SHARE * float(self.time_limit_s))
-            cand = anneal_schedule(data, self.assign, deadline=deadline,
-                                   rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE)
-            self.try_incumbent(cand, self.allowed0, {})
-            self.details["after_anneal"] = self.z
+            share = None if self.deadline is None else ANNEAL_SHARE * float(self.time_limit_s)
+            # Its kernel loads from numba's cache beside the start heuristics; a machine's first
+            # solve may still be compiling it: waited for within the share (at least
+            # KERNEL_LOAD_S), then the root's repair and LNS run instead.
+            wait = None if share is None else min(max(share, KERNEL_LOAD_S), self.deadline - time.perf_counter())
+            if kernels.ready("anneal", wait):
+                deadline = None if share is None else min(self.deadline, time.perf_counter() + share)
+                cand = anneal_schedule(data, self.assign, deadline=deadline,
+                                       rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE)
+                self.try_incumbent(cand, self.allowed0, {})
+                self.details["after_anneal"] = self.z
+            else:
+                self.anneal_skipped = True
+                self.details["kernels"] = ("no annealing: its compiled kernel was not ready within its share "
+                                           "(a machine's first solve; l3gs_opt.warm_up() compiles it)")
         self.pool.add_assignment(self.assign)
 
     def root(self) -> None:
@@ -710,7 +731,7 @@ class _Search(Clock):
     @property
     def anneals(self) -> bool:
         """The root's primal search is the annealing (:data:`ROOT_PRIMAL`), not the repair and LNS."""
-        return ROOT_PRIMAL == "anneal" and self.data.n * self.data.T <= COLGEN_MAX_PAIRS
+        return ROOT_PRIMAL == "anneal" and self.data.n * self.data.T <= COLGEN_MAX_PAIRS and not self.anneal_skipped
 
     @property
     def lean(self) -> bool:
