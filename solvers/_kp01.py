@@ -71,6 +71,12 @@ _BLOCK = 64
 
 #: States of one stage after which the search stops (memory: about 28 bytes a state).
 MAX_STATES = 30_000_000
+#: Shares of a time limit the set-up may take (a 2,000-item set took 2 s of set-up under a 1 s
+#: limit): the scale search stops trying candidates past the first share, keeping the tightest so
+#: far (any scale gives a valid bound), and each start DP runs only before the second. The bound
+#: table always runs, as the answer's bound needs it: n x units cells (at most _WORK_CELLS), 0.2-0.8 s
+#: at n=2,000 here, which a limit under a second can be overrun by.
+SCALE_SHARE, START_DP_SHARE = 0.25, 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,26 +205,31 @@ class _Bounds:
         return self.cache[s]
 
 
-def _pick_scale(w: np.ndarray, p: np.ndarray, capacity: int, units: int) -> tuple[int, int]:
+def _pick_scale(w: np.ndarray, p: np.ndarray, capacity: int, units: int,
+                deadline: float | None = None) -> tuple[int, int, int]:
     """The relaxed DP's ``lambda = num / den`` (module docstring): 1 for small capacities; else
     ``K / (capacity + 1)`` for the ``K`` among ``units``, the powers of two below it and the sizes
     of least rounding loss (:func:`_least_loss_scales`) whose root bound is smallest (the finest on
     a tie: a finer scale is not always tighter, as the rounding loss depends on how the weights sit
     against ``capacity / K``; the candidates cost about five tables); ``1 / ceil(capacity / units)``
-    when ``units * (capacity + 1)`` would overflow int64."""
+    when ``units * (capacity + 1)`` would overflow int64. Past ``deadline`` (``time.perf_counter()``
+    seconds) no further candidate is tried. Returns ``(num, den, candidates tried)``."""
     if capacity <= units:
-        return 1, 1
+        return 1, 1, 0
     if units * (capacity + 1) >= 2**62:
-        return 1, -(-capacity // units)
+        return 1, -(-capacity // units), 0
     den = capacity + 1
     powers = [1 << j for j in range(units.bit_length() - 1, 5, -1)]
     candidates = sorted({units, *powers, *_least_loss_scales(w, den, units)}, reverse=True)
-    best = None
+    best, tried = None, 0
     for K in candidates:
+        if best is not None and deadline is not None and time.perf_counter() > deadline:
+            break
         b = _dp_value(K * w // den, p, K * capacity // den)
+        tried += 1
         if best is None or b < best[0]:
             best = (b, K)
-    return best[1], den
+    return best[1], den, tried
 
 
 def _least_loss_scales(w: np.ndarray, den: int, units: int, count: int = _LOSS_SCALES) -> list[int]:
@@ -286,7 +297,10 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     # Bound tables cost n x units work twice (and the scale and start solutions about 7 times):
     # keep that near 3e8 cells on large n.
     units = max(1024, min(units, _WORK_CELLS // n))
-    num, den = _pick_scale(wo, po, c, units)
+    def by(share: float) -> float | None:
+        return None if time_limit_s is None else started + share * float(time_limit_s)
+
+    num, den, stats["scales_tried"] = _pick_scale(wo, po, c, units, by(SCALE_SHARE))
     m = num * c // den
     wu = num * wo // den
     # Two DP solutions at that scale: weights rounded up (always feasible) and rounded down (the
@@ -294,6 +308,9 @@ def solve_kp01(weight: np.ndarray, profit: np.ndarray, capacity: int, *, time_li
     # At scale 1 (small capacities) the two are the same exact DP: run it once.
     roundings = [("rounded_up", -(-num * wo // den))] + ([("rounded_down", wu)] if num != den else [])
     for name, rounded in roundings:
+        if time_limit_s is not None and time.perf_counter() > by(START_DP_SHARE):
+            stats.setdefault("skipped", []).append(name)
+            continue
         sol = _dp_solution(rounded, po, m)
         value = int(po[sol].sum())
         stats[name] = value if int(wo[sol].sum()) <= c else None

@@ -52,6 +52,21 @@ def test_kp01_equals_brute_force(case):
 
 @settings(max_examples=60, deadline=None)
 @given(_instances())
+def test_kp01_out_of_time_at_once_skips_the_optional_set_up_and_keeps_a_valid_bound(case):
+    # A limit already spent: one scale tried, neither start DP (a 2,000-item set used to take 2 s of
+    # set-up under a 1 s limit); the answer is still feasible below a valid bound.
+    w, p, c, units = case
+    res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=units, time_limit_s=1e-9)
+    opt = kp01_brute(w, p, c)
+    assert res.value <= opt <= res.bound and (not res.optimal or res.value == opt)
+    assert int(np.array(w)[res.take].sum()) <= c
+    if "scale" in res.stats:   # it got past the trivial cases to the DP set-up
+        assert res.stats["scales_tried"] <= 1
+        assert "rounded_up" not in res.stats and "rounded_up" in res.stats["skipped"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(_instances())
 def test_kp01_stopped_early_keeps_a_valid_bound(case):
     w, p, c, units = case
     res = _kp01.solve_kp01(np.array(w), np.array(p, dtype=float), c, units=units, max_states=2)
