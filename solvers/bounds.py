@@ -23,11 +23,14 @@ __all__ = ["LP_BOUND_SLACK", "lp_bound"]
 LP_BOUND_SLACK = 1e-7
 
 
-def lp_bound(instance: "Instance | ItemInstance", *, slot: int | None = None) -> tuple[float | None, float]:
+def lp_bound(instance: "Instance | ItemInstance", *, slot: int | None = None,
+             time_limit_s: float | None = None) -> tuple[float | None, float]:
     """Upper bound on Problem I/II or an item instance (or the single-slot MCKP at ``slot``) and the
-    seconds it took.
+    seconds it took; within ``time_limit_s`` seconds when given (building the model included: the
+    LP gets what is left, and a model built past the limit is not solved).
 
-    Returns ``(None, seconds)`` when HiGHS is not installed or reports no bound.
+    Returns ``(None, seconds)`` when HiGHS is not installed or reports no bound, or when the LP did
+    not finish within the limit (only an optimal LP is a bound).
     """
     from l3gs_opt.models import build_items_model, build_model, solve_model
 
@@ -37,7 +40,10 @@ def lp_bound(instance: "Instance | ItemInstance", *, slot: int | None = None) ->
             model = build_items_model(instance, slot=slot)
         else:
             model = build_model(instance, slot=slot)
-        result = solve_model(model, "highs", relax=True)
+        left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - started)
+        if left is not None and left <= 0:
+            return None, time.perf_counter() - started
+        result = solve_model(model, "highs", relax=True, time_limit_s=left)
     except BackendUnavailableError:
         return None, time.perf_counter() - started
     if result.bound is None:

@@ -139,13 +139,14 @@ def pack_order(instance: Instance, order: list[tuple[int, int]]) -> list[tuple[i
     return out
 
 
-def _solve_order(instance: Instance, kind: str, *, slot: int | None, with_bound: bool) -> Solution:
+def _solve_order(instance: Instance, kind: str, *, slot: int | None, with_bound: bool,
+                 time_limit_s: float | None) -> Solution:
     if slot is not None:
         raise SolveError(f"method {kind!r} schedules the whole horizon: slot does not apply")
     started = time.perf_counter()
     arrivals = trim_losing_layers(instance, pack_order(instance, chunk_order(instance, kind)))
     schedule_s = time.perf_counter() - started
-    bound, bound_s = _bound(instance, with_bound)
+    bound, bound_s = _bound(instance, with_bound, started, time_limit_s)
     return finish_solution(instance, arrivals, problem=instance.problem, method=kind, status=Status.FEASIBLE,
                            bound=bound, runtime_s=time.perf_counter() - started,
                            message=f"{kind}: fixed-order heuristic; bound is the LP relaxation",
@@ -155,13 +156,13 @@ def _solve_order(instance: Instance, kind: str, *, slot: int | None, with_bound:
 def solve_progressive(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
                       with_bound: bool = True, **_ignored: Any) -> Solution:
     """Progressive loading (all base layers first, then second layers, ...)."""
-    return _solve_order(instance, "progressive", slot=slot, with_bound=with_bound)
+    return _solve_order(instance, "progressive", slot=slot, with_bound=with_bound, time_limit_s=time_limit_s)
 
 
 def solve_static(instance: Instance, *, slot: int | None = None, time_limit_s: float | None = None,
                  with_bound: bool = True, **_ignored: Any) -> Solution:
     """One fixed order by time-averaged utility per byte."""
-    return _solve_order(instance, "static", slot=slot, with_bound=with_bound)
+    return _solve_order(instance, "static", slot=slot, with_bound=with_bound, time_limit_s=time_limit_s)
 
 
 def slope_pick(table: OptionTable, time_left: float | None = None) -> MckpResult:

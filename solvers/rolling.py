@@ -127,10 +127,16 @@ def slot_gains(instance: Instance, slot: int, held: np.ndarray, *, future: bool)
     return np.where(held[None], 0.0, np.clip(utility - base[:, :, None], 0.0, None)).sum(axis=0)
 
 
-def _bound(instance: Any, with_bound: bool) -> tuple[float | None, float]:
+def _bound(instance: Any, with_bound: bool, started: float | None = None,
+           time_limit_s: float | None = None) -> tuple[float | None, float]:
+    """The answer's LP bound (:func:`~.bounds.lp_bound`) and its seconds, in what is left of
+    ``time_limit_s`` from ``started`` (``time.perf_counter()``): None when that ran out first."""
     if not with_bound:
         return None, 0.0
-    return lp_bound(instance)
+    if time_limit_s is None or started is None:
+        return lp_bound(instance)
+    left = float(time_limit_s) - (time.perf_counter() - started)
+    return lp_bound(instance, time_limit_s=left) if left > 0 else (None, 0.0)
 
 
 @dataclass(frozen=True)
@@ -247,7 +253,7 @@ def run_rolling(instance: Any, pick: Picker, *, method: str, future: bool = Fals
         carry = 0
         in_flight_count += 1
     schedule_s = time.perf_counter() - started
-    bound, bound_s = _bound(inst, with_bound)
+    bound, bound_s = _bound(inst, with_bound, started, time_limit_s)
     status = Status.TIME_LIMIT if stopped else Status.FEASIBLE
     if T == 1 and result is not None and all_optimal and not stopped and inst.options.availability == "same_slot":
         # One slot: the rolling answer is the exact single-slot optimum, i.e. the whole problem's.
@@ -331,7 +337,7 @@ def solve_mpc(instance: Any, horizon: int, *, slot: int | None = None, time_limi
     if not items:
         arrivals = list(trim_losing_layers(inst, arrivals))   # a window cannot see a layer's later losses
     schedule_s = time.perf_counter() - started
-    bound, bound_s = _bound(inst, with_bound)
+    bound, bound_s = _bound(inst, with_bound, started, time_limit_s)
     details = {"schedule_s": schedule_s, "bound_s": bound_s, "windows_at_time_limit": int(window_limits),
                "backend": backend}
     return finish_solution(inst, arrivals, problem=inst.problem, method=name,

@@ -225,7 +225,7 @@ def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: f
     # A negative top layer the decoder placed as a step that no layer above repaid is cut off.
     arrivals = trim_losing_layers(instance, data.arrivals(assign))
     schedule_s = time.perf_counter() - started
-    bound, bound_s = _bound(instance, with_bound)
+    bound, bound_s = _bound(instance, with_bound, started, time_limit_s)
     return finish_solution(instance, arrivals, problem=instance.problem, method="anneal",
                            status=Status.FEASIBLE, bound=bound, runtime_s=time.perf_counter() - started,
                            message="anneal: simulated annealing over chunk orders (a heuristic); bound is the LP "

@@ -112,6 +112,8 @@ def level_repair(data: GapData, assign: np.ndarray, allowed: np.ndarray, *, dead
             targets = [i for i in targets if i in pending]
         keep = _keep_mask(allowed, data.profit, cur, best)
         if targets and levels is None:
+            if deadline is not None and deadline - time.perf_counter() <= 0.01:
+                return result()   # (building CP-SAT's model is not free either)
             levels = _LevelModel(data, best, cur, keep)
         improved, unknown = False, []
         for target in targets:
