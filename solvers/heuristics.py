@@ -40,7 +40,7 @@ from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
 from . import _mckp
 from ._mckp import MckpResult, OptionTable
-from .rolling import _bound, run_rolling
+from .rolling import _bound, bound_phrase, run_rolling
 
 __all__ = ["chunk_order", "pack_order", "solve_progressive", "solve_static", "solve_slope",
            "slope_pick", "slope_fractional_value"]
@@ -149,7 +149,7 @@ def _solve_order(instance: Instance, kind: str, *, slot: int | None, with_bound:
     bound, bound_s = _bound(instance, with_bound, started, time_limit_s)
     return finish_solution(instance, arrivals, problem=instance.problem, method=kind, status=Status.FEASIBLE,
                            bound=bound, runtime_s=time.perf_counter() - started,
-                           message=f"{kind}: fixed-order heuristic; bound is the LP relaxation",
+                           message=f"{kind}: fixed-order heuristic; {bound_phrase(bound)}",
                            details={"schedule_s": schedule_s, "bound_s": bound_s})
 
 

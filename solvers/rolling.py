@@ -127,6 +127,12 @@ def slot_gains(instance: Instance, slot: int, held: np.ndarray, *, future: bool)
     return np.where(held[None], 0.0, np.clip(utility - base[:, :, None], 0.0, None)).sum(axis=0)
 
 
+def bound_phrase(bound: float | None) -> str:
+    """How a heuristic's message names its bound."""
+    return ("bound is the LP relaxation" if bound is not None else
+            "no bound (the LP relaxation did not finish within the time limit, or was not asked for)")
+
+
 def _bound(instance: Any, with_bound: bool, started: float | None = None,
            time_limit_s: float | None = None) -> tuple[float | None, float]:
     """The answer's LP bound (:func:`~.bounds.lp_bound`) and its seconds, in what is left of
@@ -260,11 +266,11 @@ def run_rolling(instance: Any, pick: Picker, *, method: str, future: bool = Fals
         status = Status.OPTIMAL
         bound = result.bound + form.held_value
     details: dict[str, Any] = {"schedule_s": schedule_s, "bound_s": bound_s,
-                               "bound": form.bound_label if with_bound else None, **form.details()}
+                               "bound": form.bound_label if bound is not None else None, **form.details()}
     if cumulative:
         details["in_flight_downloads"] = in_flight_count
-    message = stopped or (f"{method}: rolling heuristic; bound is the LP relaxation" if status is not Status.OPTIMAL
-                          else "")
+    message = (f"{stopped}; {bound_phrase(bound)}" if stopped else
+               f"{method}: rolling heuristic; {bound_phrase(bound)}" if status is not Status.OPTIMAL else "")
     return form.finish(arrivals, method=method, status=status, bound=bound, runtime_s=time.perf_counter() - started,
                        message=message, details=details)
 
@@ -343,5 +349,5 @@ def solve_mpc(instance: Any, horizon: int, *, slot: int | None = None, time_limi
     return finish_solution(inst, arrivals, problem=inst.problem, method=name,
                            status=Status.TIME_LIMIT if stopped else Status.FEASIBLE, bound=bound,
                            runtime_s=time.perf_counter() - started,
-                           message=stopped or f"{name}: receding horizon; bound is the LP relaxation",
+                           message=f"{stopped or f'{name}: receding horizon'}; {bound_phrase(bound)}",
                            details=details)

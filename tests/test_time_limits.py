@@ -36,9 +36,10 @@ def j200():
 def test_a_limit_spent_on_the_schedule_leaves_no_bound_rather_than_overrunning(j20, method):
     sol = solve(j20, method, time_limit_s=1e-6)
     assert sol.bound is None and sol.gap is None
+    assert "no bound" in sol.message and "bound is the LP" not in sol.message
     assert is_feasible(j20, sol.arrivals)
     full = solve(j20, method)
-    assert full.bound is not None and full.bound >= full.objective
+    assert full.bound is not None and full.bound >= full.objective and "bound is the LP relaxation" in full.message
 
 
 def test_lp_bound_within_a_limit(j20):

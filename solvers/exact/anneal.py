@@ -206,7 +206,7 @@ def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: f
     SolveError
         ``slot`` given, the separate representation or the cumulative budget.
     """
-    from ..rolling import _bound
+    from ..rolling import _bound, bound_phrase
     from .starts import best_start
 
     started = time.perf_counter()
@@ -228,7 +228,6 @@ def solve_anneal(instance: Instance, *, slot: int | None = None, time_limit_s: f
     bound, bound_s = _bound(instance, with_bound, started, time_limit_s)
     return finish_solution(instance, arrivals, problem=instance.problem, method="anneal",
                            status=Status.FEASIBLE, bound=bound, runtime_s=time.perf_counter() - started,
-                           message="anneal: simulated annealing over chunk orders (a heuristic); bound is the LP "
-                                   "relaxation",
+                           message=f"anneal: simulated annealing over chunk orders (a heuristic); {bound_phrase(bound)}",
                            details={"start": start_name, "start_value": assignment_value(data, start), "schedule_s": schedule_s,
                                     "bound_s": bound_s})
