@@ -17,9 +17,10 @@ from l3gs_opt.bench.suites import paper_spec
 from l3gs_opt.problem.evaluate import is_feasible
 from l3gs_opt.solvers.bounds import lp_bound
 
-#: Seconds past its limit a call may run here: generous for a loaded CI machine (the slowest case
-#: below took 1.06 s under a 0.5 s limit on our 2-core box, and 3.1 s before).
-SLACK_S = 1.5
+#: Seconds past its limit a call may run here: room for a machine twice as slow as our 2-core box,
+#: where the slowest case below took 1.05 s under a 0.5 s limit (before: exact 3.07 s, static 2.72 s;
+#: the ilp case is held to its limit by the naive-size test above, not by this one).
+SLACK_S = 2.0
 
 
 @pytest.fixture(scope="module")
