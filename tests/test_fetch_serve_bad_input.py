@@ -65,7 +65,7 @@ def test_serve_refuses_a_host_that_is_not_loopback(world, capsys, busy_port, hos
     assert line.startswith(f"error: --host: {host!r}: only a loopback address") and "local viewing" in line, line
 
 
-# -- 2: fetch --slot-s 1e-300 / --mbps 1e-300 ran and reported nonsense
+# -- 2: fetch --slot-s 1e-300 / --mbps 1e-300 ran and reported nonsense (1e-300 is now below MIN_MBPS; 1e-6 still gives no byte)
 def test_fetch_slot_too_short(world, capsys, tmp_path):
     args = _fetch_args(world, tmp_path / "o")
     args[args.index("--slot-s") + 1] = "1e-300"
@@ -77,9 +77,9 @@ def test_fetch_slot_too_short(world, capsys, tmp_path):
 
 def test_fetch_mbps_giving_no_byte(world, capsys, tmp_path):
     args = _fetch_args(world, tmp_path / "o")
-    args[args.index("--mbps") + 1] = "1e-300"
+    args[args.index("--mbps") + 1] = "1e-6"
     line = one_error_line(capsys, *args)
-    assert line.startswith("error: --mbps: 1e-300 Mbit/s gives 0 bytes in every one of the 2 slots"), line
+    assert line.startswith("error: --mbps: 1e-06 Mbit/s gives 0 bytes in every one of the 2 slots"), line
     assert not (tmp_path / "o" / "index.json").exists()
 
 
