@@ -35,6 +35,8 @@ def lp_bound(instance: "Instance | ItemInstance", *, slot: int | None = None,
     from l3gs_opt.models import build_items_model, build_model, solve_model
 
     started = time.perf_counter()
+    if time_limit_s is not None and time_limit_s <= 0:   # spent already: not even the model is built
+        return None, 0.0
     try:
         if isinstance(instance, ItemInstance):   # the item form's ILP, same relaxation
             model = build_items_model(instance, slot=slot)

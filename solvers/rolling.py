@@ -141,8 +141,7 @@ def _bound(instance: Any, with_bound: bool, started: float | None = None,
         return None, 0.0
     if time_limit_s is None or started is None:
         return lp_bound(instance)
-    left = float(time_limit_s) - (time.perf_counter() - started)
-    return lp_bound(instance, time_limit_s=left) if left > 0 else (None, 0.0)
+    return lp_bound(instance, time_limit_s=float(time_limit_s) - (time.perf_counter() - started))
 
 
 @dataclass(frozen=True)

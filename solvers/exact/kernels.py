@@ -21,6 +21,7 @@ end of the process, so that a compile started by a short solve reaches the disk 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import threading
 from typing import Callable
@@ -45,10 +46,11 @@ _running: list[threading.Thread] = []
 
 def _compile(names: tuple[str, ...], events: list[threading.Event]) -> None:
     for name, event in zip(names, events):
+        # A kernel that fails to compile fails again at its real call, where the caller sees it;
+        # here it must not leave the later kernels' events unset (their waiters would hang).
         try:
-            KERNELS[name]()
-        except Exception:   # noqa: BLE001 - it fails again at its real call, where the caller sees it
-            pass
+            with contextlib.suppress(Exception):
+                KERNELS[name]()
         finally:
             event.set()
 

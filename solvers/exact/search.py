@@ -717,8 +717,8 @@ class _Search(Clock):
 
     def repair(self) -> None:
         """Level-keeping repair (:mod:`.repair`): a chunk gains, nobody loses; REPAIR_SHARE of the time left."""
-        # (by size, not only where the LP's duals came back: at J=200 CP-SAT's model alone took 1.5 s)
-        if _closed(self.bound, self.z) or self.big or self.data.n * self.data.T > COLGEN_MAX_PAIRS:
+        # By size (``big`` also needs the LP's duals back: at J=200 CP-SAT's model alone took 1.5 s)
+        if _closed(self.bound, self.z) or self.data.n * self.data.T > COLGEN_MAX_PAIRS:
             return
         left = self.left()
         rep = level_repair(self.data, self.assign, self.allowed0,
