@@ -10,6 +10,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from l3gs_opt import Instance, Options, Status, is_feasible, solve
+from l3gs_opt.models.backends import cbc
 from l3gs_opt.problem.solution import finish_solution
 
 BACKENDS = ("cbc", "highs", "cpsat", "scip")
@@ -139,7 +140,7 @@ def instances(draw):
 @settings(max_examples=int(__import__("os").environ.get("L3GS_HYPOTHESIS_EXAMPLES", 60)), deadline=None)
 @given(inst=instances(), backend=st.sampled_from(BACKENDS))
 # CI drew this one (2026-12-03): CBC said "optimal" at 0, bound 0; the optimum is 1e-9, the 1024
-# out of reach (Clp's own scaling undid the prescale; models/backends/cbc.py CBC_ARGS).
+# out of reach (Clp's own scaling undid the prescale; models/backends/cbc.py STIFF_OBJECTIVE_RANGE).
 @example(inst=Instance("layered", bandwidth=[7, 0, 4], cost=[[7, 4]],
                        utility=np.array([[[0.0, 1024.0]], [[0.0, 0.0]], [[0.0, 1e-9]]]),
                        options=Options(availability="same_slot", same_slot_layers=True, budget="per_slot")),
@@ -150,3 +151,32 @@ def test_solutions_always_feasible_and_optimal(inst, backend):
     ref = solve(inst, "brute")
     assert math.isclose(sol.objective, ref.objective, rel_tol=1e-9, abs_tol=1e-12), (sol.status, sol.message)
     assert sol.bound is None or sol.bound >= sol.objective
+
+
+@pytest.mark.parametrize("small", [2e-3, 1e-9])
+def test_cbc_scaling_follows_the_objective_range(small):
+    """The CI draw above with its small utility at a range of ~5e5 (Clp's scaling on: it must still
+    find the small one) and at 1e12 (scaling off)."""
+    inst = Instance("layered", bandwidth=[7, 0, 4], cost=[[7, 4]],
+                    utility=np.array([[[0.0, 1024.0]], [[0.0, 0.0]], [[0.0, small]]]),
+                    options=Options(availability="same_slot", same_slot_layers=True, budget="per_slot"))
+    sol = solve(inst, "ilp", backend="cbc")
+    ref = solve(inst, "brute")
+    assert sol.status is Status.OPTIMAL and ref.objective > 0
+    assert math.isclose(sol.objective, ref.objective, rel_tol=1e-9), sol.message
+    stiff = small < 1e-6
+    assert sol.details["cbc_args"] == (list(cbc.STIFF_ARGS) if stiff else [])
+
+
+@settings(max_examples=int(__import__("os").environ.get("L3GS_HYPOTHESIS_EXAMPLES", 60)), deadline=None)
+@given(inst=instances(), scale=st.floats(1.0, cbc.STIFF_OBJECTIVE_RANGE))
+def test_cbc_with_clp_scaling_matches_brute_force(inst, scale):
+    """Utilities squeezed into [1, scale] (a range CBC solves with Clp's scaling on, or just above
+    it where the layered form's sums widen it): CBC's optimum equals brute force's."""
+    utility = np.where(inst.utility > 0, 1.0 + (scale - 1.0) * (inst.utility > 1.0), 0.0)
+    inst = Instance(inst.representation, bandwidth=inst.bandwidth, cost=inst.cost, utility=utility,
+                    options=inst.options)
+    sol = solve(inst, "ilp", backend="cbc")
+    assert is_feasible(inst, sol.arrivals)
+    ref = solve(inst, "brute")
+    assert math.isclose(sol.objective, ref.objective, rel_tol=1e-9, abs_tol=1e-12), (sol.status, sol.message)

@@ -30,14 +30,18 @@ from ..linear import LinearModel
 from . import BackendResult, mapped_status
 
 _KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
-#: CBC command-line settings of every run. ``scaling off``: Clp's own scaling rescales the
-#: objective and undoes the power-of-two prescale of :func:`~l3gs_opt.models.backends.solve_model`
-#: (largest coefficient ~2**20 against an absolute 1e-7 tolerance): a Problem III model with
-#: coefficients 5.2e5 and 5.1e-7 (utilities 1024 and 1e-9, the 1024 out of reach) came back
-#: "optimal" at 0 with bound 0, the optimum being 1e-9 (tests/test_stiff.py; HiGHS and CP-SAT
-#: found it). Without Clp's scaling it does too; J=20 T=10 instances ran the same (same objective,
-#: bound and time, 2026-12-03).
-CBC_ARGS = ("scaling off",)
+#: Objective range (largest over smallest nonzero coefficient) above which CBC runs with Clp's
+#: scaling off. Clp's own scaling rescales the objective and undoes the power-of-two prescale of
+#: :func:`~l3gs_opt.models.backends.solve_model` (largest coefficient ~2**20 against an absolute
+#: 1e-7 tolerance): a Problem III model with coefficients 5.2e5 and 5.1e-7 (utilities 1024 and
+#: 1e-9, the 1024 out of reach, a range of 1e12) came back "optimal" at 0 with bound 0, the
+#: optimum being 1e-9 (tests/test_stiff.py; HiGHS and CP-SAT found it). Without Clp's scaling it
+#: does too. But scaling off costs the root LP at scale: at J=200, T=60 (objective range 4.0e4)
+#: 12.5 s against 2.8 s (benchmarks/results/cbc_scaling.md). Up to 1e6 every coefficient stays
+#: at least 1 after the prescale, ten million times Clp's tolerances, so scaling may stay on.
+STIFF_OBJECTIVE_RANGE = 1e6
+#: CBC command-line settings of a model whose objective range exceeds STIFF_OBJECTIVE_RANGE.
+STIFF_ARGS = ("scaling off",)
 _RESULT = re.compile(r"^Result - (.*)$", re.M)
 _UPPER = re.compile(r"^Upper bound:\s+(\S+)", re.M)
 _VERSION = re.compile(r"^Version:\s+(\S+)", re.M)
@@ -62,6 +66,18 @@ def _result_kind(result: str, relax: bool, pulp_status: str) -> str:
     if relax and pulp_status == "Optimal":   # CBC's LP path prints no "Result -" line
         return "optimal"
     return result
+
+
+def objective_range(model: LinearModel) -> float:
+    """Largest over smallest absolute nonzero objective coefficient (1.0 when at most one)."""
+    nonzero = np.abs(model.objective[model.objective != 0])
+    return float(nonzero.max() / nonzero.min()) if nonzero.size else 1.0
+
+
+def cbc_args(model: LinearModel) -> tuple[str, ...]:
+    """CBC's settings for ``model``: Clp's scaling off only for a stiff objective (see
+    :data:`STIFF_OBJECTIVE_RANGE`)."""
+    return STIFF_ARGS if objective_range(model) > STIFF_OBJECTIVE_RANGE else ()
 
 
 def version(log: str = "") -> str:
@@ -96,6 +112,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     for key in options:
         if key not in _KNOWN:
             warnings.warn(f"cbc: unknown option {key!r} ignored", stacklevel=3)
+    args = cbc_args(model)
     fd, log_path = tempfile.mkstemp(suffix=".log", prefix="l3gs-cbc-")
     os.close(fd)
     try:
@@ -104,7 +121,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
             # CBC binary is what makes the backend work on a fresh machine.
             warnings.simplefilter("ignore", DeprecationWarning)
             cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_limit_s, gapRel=0.0, gapAbs=0.0,
-                                    logPath=log_path, options=list(CBC_ARGS), **kwargs)
+                                    logPath=log_path, options=list(args), **kwargs)
         problem.solve(cmd)
         with open(log_path, encoding="utf-8", errors="replace") as fh:
             log = fh.read()
@@ -137,4 +154,5 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         if upper:
             bound = float(upper.group(1))
     return BackendResult(status=status, values=values, bound=bound, version=version(log),
-                         message=f"CBC: {result or 'no result line'} (PuLP said {pulp.LpStatus[problem.status]})")
+                         message=f"CBC: {result or 'no result line'} (PuLP said {pulp.LpStatus[problem.status]})",
+                         details={"cbc_args": list(args)})
