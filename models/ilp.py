@@ -8,14 +8,12 @@ from typing import Any, Callable, Mapping
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import Solution, Status, finish_solution
 
-from .backends import Backend, solve_model
+from .backends import MIN_SOLVE_S, Backend, solve_model, time_left
 from .build import build_model
 from .linear import LinearModel
 
 __all__ = ["solve_ilp", "solve_built", "MIN_SOLVE_S", "NAIVE_BUILD_FACTOR"]
 
-#: Seconds a backend is given at least, when building the model used up the time limit.
-MIN_SOLVE_S = 0.01
 #: The naive model's build time, in units of the presolved one's (an estimate; at J=200, T=60 the
 #: naive one took 0.70 s against 0.67 s): above what the limit leaves,
 #: its size is not reported.
@@ -54,7 +52,7 @@ def solve_built(instance: Any, build: Callable[[bool], LinearModel], *, backend:
     built_s = time.perf_counter() - started
     # The time limit covers building the model too: the backend gets what is left (at least
     # MIN_SOLVE_S, so a model built past the limit still ends as a time limit, not an error).
-    left = None if time_limit_s is None else max(MIN_SOLVE_S, time_limit_s - built_s)
+    left = time_left(time_limit_s, started)
     result = solve_model(model, backend, time_limit_s=left, relax=relax, options=options)
     runtime = time.perf_counter() - started
     # The naive model is built for its size only, after the solve and only when the limit leaves

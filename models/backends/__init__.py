@@ -25,7 +25,7 @@ from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
 
-__all__ = ["Backend", "BackendResult", "is_installed", "installed_backends", "solve_model"]
+__all__ = ["Backend", "BackendResult", "is_installed", "installed_backends", "solve_model", "time_left", "MIN_SOLVE_S"]
 
 
 class Backend(str, enum.Enum):
@@ -45,6 +45,20 @@ class Backend(str, enum.Enum):
             return cls(name)
         except ValueError:
             raise SolveError(f"backend {name!r} is not one of {', '.join(b.value for b in cls)}") from None
+
+
+#: Seconds a backend's solver is given at least, when building its model used up the time limit
+#: (so a model built past the limit still ends as a time limit, not an error).
+MIN_SOLVE_S = 0.01
+
+
+def time_left(time_limit_s: float | None, started: float) -> float | None:
+    """What is left of ``time_limit_s`` (seconds) since ``started`` (a ``time.perf_counter()``
+    reading), at least :data:`MIN_SOLVE_S`; None for no limit. An adapter that builds its solver's
+    model in Python gives the solver this, so the limit covers that build too."""
+    if time_limit_s is None:
+        return None
+    return max(MIN_SOLVE_S, time_limit_s - (time.perf_counter() - started))
 
 
 _OBJECTIVE_TOP = 20  # log2 of the largest objective coefficient a backend sees

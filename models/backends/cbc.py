@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+import time
 import warnings
 from importlib.metadata import version as _pkg_version
 from typing import Any
@@ -27,7 +28,7 @@ import pulp
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
-from . import BackendResult, mapped_status
+from . import BackendResult, mapped_status, time_left
 
 _KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
 #: Objective range (largest over smallest nonzero coefficient) above which CBC runs with Clp's
@@ -86,6 +87,7 @@ def version(log: str = "") -> str:
 
 
 def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, options: dict[str, Any]) -> BackendResult:
+    started = time.perf_counter()
     problem = pulp.LpProblem("l3gs", pulp.LpMaximize)
     # PuLP 3.3 deprecates free-standing LpVariable in favour of LpProblem.add_variable.
     new_var = getattr(problem, "add_variable", pulp.LpVariable)
@@ -120,7 +122,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
             # PuLP 3.3 announces PULP_CBC_CMD's removal in 4.0 (pyproject pins pulp<4): the bundled
             # CBC binary is what makes the backend work on a fresh machine.
             warnings.simplefilter("ignore", DeprecationWarning)
-            cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_limit_s, gapRel=0.0, gapAbs=0.0,
+            cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_left(time_limit_s, started), gapRel=0.0, gapAbs=0.0,
                                     logPath=log_path, options=list(args), **kwargs)
         problem.solve(cmd)
         with open(log_path, encoding="utf-8", errors="replace") as fh:

@@ -11,6 +11,7 @@ schedule ``|true(x) - scaled(x) / scale| <= E = sum_i |e_i| ub_i``: the reported
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from typing import Any
 
@@ -22,7 +23,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
-from . import BackendResult, mapped_status
+from . import BackendResult, mapped_status, time_left
 
 _TARGET = 2.0**53
 _KNOWN = {"num_workers", "random_seed", "log_search_progress"}
@@ -60,6 +61,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         # (The cumulative budget's byte carry was the one such column; its rows are prefix rows now.)
         raise SolveError(f"backend 'cpsat' needs finite variable bounds; variable "
                          f"{model.var_names[int(unbounded[0])]!r} is unbounded")
+    started = time.perf_counter()
     weight = float(np.sum(np.abs(model.objective) * np.maximum(np.abs(model.ub), np.abs(model.lb))))
     scale = 2.0 ** math.floor(math.log2(_TARGET / weight)) if weight > 0 else 1.0
     scaled = np.round(model.objective * scale)
@@ -82,7 +84,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
     m.maximize(cp_model.LinearExpr.weighted_sum([xs[i] for i in nz], [int(scaled[i]) for i in nz]))
     solver = cp_model.CpSolver()
     if time_limit_s is not None:
-        solver.parameters.max_time_in_seconds = float(time_limit_s)
+        solver.parameters.max_time_in_seconds = time_left(time_limit_s, started)
     for key, value in options.items():
         if key not in _KNOWN:
             warnings.warn(f"cpsat: unknown option {key!r} passed through to CP-SAT", stacklevel=3)

@@ -12,7 +12,7 @@ from ortools.linear_solver import pywraplp
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
-from . import BackendResult, mapped_status, timed_out
+from . import BackendResult, mapped_status, timed_out, time_left
 
 _KNOWN = {"threads"}
 #: pywraplp's result codes (NOT_SOLVED before the time limit: an error, not a stop).
@@ -56,7 +56,7 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
         objective.SetCoefficient(xs[i], float(model.objective[i]))
     objective.SetMaximization()
     if time_limit_s is not None:
-        solver.SetTimeLimit(max(1, int(time_limit_s * 1000)))
+        solver.SetTimeLimit(max(1, int(time_left(time_limit_s, start) * 1000)))
     for key, value in options.items():
         if key == "threads":
             solver.SetNumThreads(int(value))
