@@ -9,9 +9,10 @@ loops (the wall-clock callback of :mod:`l3gs_opt.models.backends.highs`) and CP-
 ``time_limit``, its best schedule and a valid bound, and a message that says it was stopped on
 request. A second Ctrl-C raises :class:`KeyboardInterrupt` as usual.
 
-CBC, which PuLP runs as a child process, does not see a request made in Python. In a terminal the
-Ctrl-C reaches it directly (it is in the terminal's process group), and it stops as at its time
-limit: its best integer schedule, if it found one, and its bound. SCIP (an optional backend) is not
+CBC, which PuLP runs as a child process, does not see a request made in Python: its adapter sends
+it SIGINT (:func:`child_processes`, Linux only), again every ``CBC_RESEND_S`` (``models/backends/cbc.py``) until it ends,
+since CBC acts on one only in its tree search. It then stops as at its time limit: its best integer
+schedule, if it found one, and its bound. In a terminal the Ctrl-C also reaches it directly. SCIP (an optional backend) is not
 watched. The compiled knapsack searches end at their own (short) limits.
 
 A process that forks in a loop (the local executor) would lose some Ctrl-Cs: Python drops an
@@ -22,6 +23,7 @@ so a SIGINT that lands during a fork raises its KeyboardInterrupt where nobody s
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -29,7 +31,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, TypeVar
 
-__all__ = ["requested", "request", "clear", "expired", "on_interrupt", "noted_interrupts", "stoppable", "STOPPED_NOTE"]
+__all__ = ["child_processes", "requested", "request", "clear", "expired", "on_interrupt", "noted_interrupts", "stoppable", "STOPPED_NOTE"]
 
 #: What a method stopped on request says (appended to its message).
 STOPPED_NOTE = "stopped on request (Ctrl-C) before its time limit: the best schedule so far and a valid bound"
@@ -145,3 +147,25 @@ def stoppable(run: Callable[[], T], halt: Callable[[], None], poll_s: float = 0.
     if "error" in out:
         raise out["error"]  # type: ignore[misc]
     return out["value"]  # type: ignore[return-value]
+
+
+def child_processes(name: str) -> list[int]:
+    """Process ids of this process's children whose command name is ``name`` (Linux ``/proc``;
+    an empty list where there is none)."""
+    me = os.getpid()
+    pids: list[int] = []
+    try:
+        for task in os.listdir(f"/proc/{me}/task"):
+            with open(f"/proc/{me}/task/{task}/children", encoding="ascii") as fh:
+                pids += [int(p) for p in fh.read().split()]
+    except OSError:
+        return []
+    out = []
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/comm", encoding="utf-8") as fh:
+                if fh.read().strip() == name:
+                    out.append(pid)
+        except OSError:
+            continue
+    return out

@@ -148,12 +148,13 @@ def test_stoppable_returns_raises_and_halts_once() -> None:
     ("exact", 50, 1, "cumulative", 3.0),   # the arrived-by search (HiGHS on the event model)
     ("ilp", 50, 1, "per_slot", 3.0),       # HiGHS branch-and-cut
     ("ilp/cpsat", 20, 0, "per_slot", 3.0),  # CP-SAT through stop_search
+    ("ilp/cbc", 20, 0, "per_slot", 3.0),    # CBC: SIGINT to PuLP's child, resent until it acts
 ])
 def test_a_stopped_solve_returns_its_best_answer(method: str, J: int, seed: int, budget: str,
                                                  after_s: float) -> None:
     inst = bench_instance(J, seed, budget)
     heuristic = solve(inst, "rolling-future:bb")
-    backend = "cpsat" if method == "ilp/cpsat" else "highs"
+    backend = method.split("/")[1] if "/" in method else "highs"
     timer = threading.Timer(after_s, stop.request)
     timer.start()
     try:
@@ -169,7 +170,7 @@ def test_a_stopped_solve_returns_its_best_answer(method: str, J: int, seed: int,
 
 def test_only_a_run_the_request_stopped_says_so() -> None:
     """A heuristic that finishes (``feasible``) is not stopped by a request; nor is a run that went
-    on to its time limit (CBC: PuLP's child process does not see it)."""
+    on to its time limit."""
     from l3gs_opt.methods import _noting_stop
     from l3gs_opt.models.backends import LIMIT_SLACK as STOP_SLACK
 
@@ -233,24 +234,6 @@ def test_cli_first_ctrl_c_prints_the_best_answer(tmp_path, capsys, monkeypatch, 
     assert not stop.requested()
 
 
-def _children_named(name: str) -> list[int]:
-    """This process's child processes called ``name`` (Linux /proc)."""
-    me = os.getpid()
-    pids = []
-    for task in os.listdir(f"/proc/{me}/task"):
-        with open(f"/proc/{me}/task/{task}/children", encoding="ascii") as fh:
-            pids += [int(p) for p in fh.read().split()]
-    out = []
-    for pid in pids:
-        try:
-            with open(f"/proc/{pid}/comm", encoding="utf-8") as fh:
-                if fh.read().strip() == name:
-                    out.append(pid)
-        except FileNotFoundError:
-            continue
-    return out
-
-
 @pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="finds CBC's process through Linux /proc")
 def test_a_terminal_ctrl_c_stops_cbc_with_its_bound() -> None:
     """In a terminal the Ctrl-C reaches PuLP's CBC child as well as Python. CBC then stops as at
@@ -261,10 +244,10 @@ def test_a_terminal_ctrl_c_stops_cbc_with_its_bound() -> None:
     sent: list[int] = []
 
     def ctrl_c() -> None:
-        if _wait_for(lambda: bool(_children_named("cbc")), 20.0):
+        if _wait_for(lambda: bool(stop.child_processes("cbc")), 20.0):
             time.sleep(1.5)
             stop.request()
-            for pid in _children_named("cbc"):
+            for pid in stop.child_processes("cbc"):
                 os.kill(pid, signal.SIGINT)
                 sent.append(pid)
 
@@ -278,3 +261,25 @@ def test_a_terminal_ctrl_c_stops_cbc_with_its_bound() -> None:
     assert "ctrl-c" in sol.message.lower() and stop.STOPPED_NOTE in sol.message
     check_answer(inst, sol)
     assert sol.bound >= heuristic.objective
+
+
+@pytest.mark.parametrize("requested", [True, False])
+def test_a_cbc_killed_at_its_start_is_no_traceback(monkeypatch, requested: bool) -> None:
+    """A SIGINT before CBC installs its handler kills it (seen with one sent at once) and PuLP raises
+    ``PulpSolverError``: the answer is no schedule and no bound, a time limit when a stop was asked
+    for, else an error."""
+    import pulp
+
+    def killed(self, solver=None, **kwargs):
+        raise pulp.PulpSolverError("Pulp: Error while trying to execute cbc")
+
+    monkeypatch.setattr(pulp.LpProblem, "solve", killed)
+    inst = bench_instance(20, 0)
+    if requested:
+        stop.request()
+    try:
+        sol = solve(inst, "ilp", backend="cbc", time_limit_s=10.0)
+    finally:
+        stop.clear()
+    assert sol.arrivals == () and sol.bound is None and "CBC ended without an answer" in sol.message
+    assert sol.status is (Status.TIME_LIMIT if requested else Status.ERROR)

@@ -14,9 +14,12 @@ below a known schedule as wrong.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import signal
 import tempfile
+import threading
 import time
 import warnings
 from importlib.metadata import version as _pkg_version
@@ -25,6 +28,7 @@ from typing import Any
 import numpy as np
 import pulp
 
+from l3gs_opt import stop
 from l3gs_opt.problem.solution import Status
 
 from ..linear import LinearModel
@@ -43,6 +47,13 @@ _KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
 STIFF_OBJECTIVE_RANGE = 1e6
 #: CBC command-line settings of a model whose objective range exceeds STIFF_OBJECTIVE_RANGE.
 STIFF_ARGS = ("scaling off",)
+#: Seconds between the SIGINTs a stop request sends CBC: CBC acts on one only in its tree search
+#: (one sent while it reads its file or solves the root LP is lost), so it is sent again until
+#: CBC ends.
+CBC_RESEND_S = 0.25
+#: Seconds CBC's process must have existed before the first SIGINT: CBC installs its handler
+#: only after it starts, and a SIGINT before that kills it (seen at once, not at 0.05 s).
+CBC_HANDLER_S = 0.2
 _RESULT = re.compile(r"^Result - (.*)$", re.M)
 _UPPER = re.compile(r"^Upper bound:\s+(\S+)", re.M)
 _VERSION = re.compile(r"^Version:\s+(\S+)", re.M)
@@ -67,6 +78,24 @@ def _result_kind(result: str, relax: bool, pulp_status: str) -> str:
     if relax and pulp_status == "Optimal":   # CBC's LP path prints no "Result -" line
         return "optimal"
     return result
+
+
+def _interrupt_until(done: threading.Event) -> None:
+    """Send this process's CBC children SIGINT every :data:`CBC_RESEND_S` until ``done``, each
+    first :data:`CBC_HANDLER_S` after it is seen (in a thread: :func:`l3gs_opt.stop.stoppable`
+    waits on the solve, not on this)."""
+
+    def send() -> None:
+        seen: dict[int, float] = {}
+        while not done.is_set():
+            now = time.perf_counter()
+            for pid in stop.child_processes("cbc"):
+                if now - seen.setdefault(pid, now) >= CBC_HANDLER_S:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(pid, signal.SIGINT)
+            done.wait(CBC_RESEND_S)
+
+    threading.Thread(target=send, name="l3gs-cbc-stop", daemon=True).start()
 
 
 def objective_range(model: LinearModel) -> float:
@@ -124,7 +153,22 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
             warnings.simplefilter("ignore", DeprecationWarning)
             cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_left(time_limit_s, started), gapRel=0.0, gapAbs=0.0,
                                     logPath=log_path, options=list(args), **kwargs)
-        problem.solve(cmd)
+        done = threading.Event()
+
+        def run() -> None:
+            try:
+                problem.solve(cmd)
+            finally:
+                done.set()
+
+        try:
+            stop.stoppable(run, lambda: _interrupt_until(done))
+        except pulp.PulpSolverError as exc:
+            # CBC killed before its handler was in place (a terminal's Ctrl-C at its start): no
+            # answer, and not an error when a stop was asked for.
+            status = Status.TIME_LIMIT if stop.requested() else Status.ERROR
+            return BackendResult(status=status, values=None, bound=None, version=version(),
+                                 message=f"CBC ended without an answer ({exc})", details={"cbc_args": list(args)})
         with open(log_path, encoding="utf-8", errors="replace") as fh:
             log = fh.read()
     finally:
