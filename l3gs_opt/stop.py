@@ -10,10 +10,10 @@ loops (the wall-clock callback of :mod:`l3gs_opt.models.backends.highs`) and CP-
 request. A second Ctrl-C raises :class:`KeyboardInterrupt` as usual.
 
 CBC, which PuLP runs as a child process, does not see a request made in Python: its adapter sends
-it SIGINT (:func:`child_processes`, Linux only), again every ``CBC_RESEND_S`` (``models/backends/cbc.py``) until it ends,
-since CBC acts on one only in its tree search. It then stops as at its time limit: its best integer
-schedule, if it found one, and its bound. In a terminal the Ctrl-C also reaches it directly. SCIP (an optional backend) is not
-watched. The compiled knapsack searches end at their own (short) limits.
+it SIGINT (:func:`child_processes`, Linux only), again every ``CBC_RESEND_S``
+(``models/backends/cbc.py``) until it ends, since CBC acts on one only in its tree search. It then
+stops as at its time limit: its best integer schedule, if it found one, and its bound. In a
+terminal the Ctrl-C also reaches it directly. SCIP (an optional backend) is not watched. The compiled knapsack searches end at their own (short) limits.
 
 A process that forks in a loop (the local executor) would lose some Ctrl-Cs: Python drops an
 exception raised inside a fork hook (:func:`os.register_at_fork`; :mod:`logging` registers some),
@@ -31,7 +31,8 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, TypeVar
 
-__all__ = ["child_processes", "requested", "request", "clear", "expired", "on_interrupt", "noted_interrupts", "stoppable", "STOPPED_NOTE"]
+__all__ = ["child_processes", "requested", "request", "clear", "expired", "on_interrupt", "noted_interrupts",
+           "stoppable", "STOPPED_NOTE"]
 
 #: What a method stopped on request says (appended to its message).
 STOPPED_NOTE = "stopped on request (Ctrl-C) before its time limit: the best schedule so far and a valid bound"

@@ -42,8 +42,9 @@ _KNOWN = {"threads", "presolve", "cuts", "strong", "maxNodes"}
 #: 1e-9, the 1024 out of reach, a range of 1e12) came back "optimal" at 0 with bound 0, the
 #: optimum being 1e-9 (tests/test_stiff.py; HiGHS and CP-SAT found it). Without Clp's scaling it
 #: does too. But scaling off costs the root LP at scale: at J=200, T=60 (objective range 4.0e4)
-#: 12.5 s against 2.8 s (benchmarks/results/cbc_scaling.md). Up to 1e6 every coefficient stays
-#: at least 1 after the prescale, ten million times Clp's tolerances, so scaling may stay on.
+#: 12.5 s against 2.8 s (benchmarks/results/cbc_scaling.md). Up to 1e6 the smallest coefficient
+#: is at least a millionth of the largest whatever Clp's scaling does, above its 1e-7 tolerances;
+#: tests/test_stiff.py pins a case on each side and checks CBC against brute force below it.
 STIFF_OBJECTIVE_RANGE = 1e6
 #: CBC command-line settings of a model whose objective range exceeds STIFF_OBJECTIVE_RANGE.
 STIFF_ARGS = ("scaling off",)
@@ -151,8 +152,8 @@ def solve(model: LinearModel, *, time_limit_s: float | None, relax: bool, option
             # PuLP 3.3 announces PULP_CBC_CMD's removal in 4.0 (pyproject pins pulp<4): the bundled
             # CBC binary is what makes the backend work on a fresh machine.
             warnings.simplefilter("ignore", DeprecationWarning)
-            cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_left(time_limit_s, started), gapRel=0.0, gapAbs=0.0,
-                                    logPath=log_path, options=list(args), **kwargs)
+            cmd = pulp.PULP_CBC_CMD(msg=False, mip=not relax, timeLimit=time_left(time_limit_s, started),
+                                    gapRel=0.0, gapAbs=0.0, logPath=log_path, options=list(args), **kwargs)
         done = threading.Event()
 
         def run() -> None:
