@@ -18,7 +18,8 @@ from l3gs_opt import solve
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.exact import _anneal_kernels as kernels
-from l3gs_opt.solvers.exact.anneal import anneal_schedule, first_fit, slot_order
+from l3gs_opt.errors import SolveError
+from l3gs_opt.solvers.exact.anneal import anneal_race, anneal_schedule, first_fit, slot_order
 from l3gs_opt.solvers.exact.lagrange import assignment_feasible, assignment_value, gap_data
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -80,6 +81,29 @@ def test_anneal_is_feasible_never_below_its_start_never_above_the_optimum(seed: 
     assert value == pytest.approx(evaluate_objective(inst, data.arrivals(out)), rel=1e-12, abs=1e-12)
     assert value >= assignment_value(data, start)
     assert value <= ref + 1e-9 * max(1.0, abs(ref))
+
+
+@SETTINGS
+@given(seed=st.integers(0, 10_000), opt=st.integers(0, len(PER_SLOT_OPTIONS) - 1))
+def test_anneal_race_is_the_first_best_of_its_chains(seed: int, opt: int) -> None:
+    """Chains raced in threads give what each gives alone (the kernel shares nothing between
+    calls), and the race keeps the best, the earliest seed on a tie."""
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, T=4, J=4, L=2, options=PER_SLOT_OPTIONS[opt], tight=0.5)
+    data = gap_data(inst)
+    seeds = (seed, seed + 1, seed + 2)
+    alone = [anneal_schedule(data, None, rounds=2, seed=s, moves=300) for s in seeds]
+    values = [assignment_value(data, a) for a in alone]
+    first_best = alone[values.index(max(values))]
+    out = anneal_race(data, None, seeds=seeds, rounds=2, moves=300)
+    assert np.array_equal(out, first_best)
+    assert assignment_feasible(data, out) and is_feasible(inst, data.arrivals(out))
+
+
+def test_anneal_race_needs_a_seed() -> None:
+    data = gap_data(random_instance(np.random.default_rng(0), T=2, J=2, L=2))
+    with pytest.raises(SolveError, match="at least one seed"):
+        anneal_race(data, None, seeds=(), rounds=1)
 
 
 def test_anneal_finds_the_optimum_of_small_instances() -> None:

@@ -79,7 +79,7 @@ from .colgen import ColumnPool, Master, column_generation
 from .covers import separate_covers
 from .sides import run_sides
 from .starts import best_start
-from .anneal import anneal_schedule
+from .anneal import anneal_race
 from .warm import warm_up
 from . import lagrange
 from .lns import lp_neighbourhood, reduced_mip, window_sweep
@@ -165,6 +165,11 @@ ANNEAL_SHARE, ANNEAL_ROUNDS = 0.07, 12
 #: The annealing stops early when this many rounds in a row find nothing better (most J=20 seeds
 #: reach their best in the first two rounds of about 0.35 s, from the fourteen runs of 4.2 s each).
 ANNEAL_PATIENCE = 4
+#: Seeds of the annealing chains, raced one per core (:func:`.anneal.anneal_race`): the second core
+#: is idle until the root LP. J=20 seeds 0-9, two runs each: 8 of 10 proven in 60 s in both, median
+#: 16.9 / 17.4 s; with seed 0 alone 7 of 10, median 31.1 / 31.4 s (s0 never: its chain ends 1.1
+#: below the optimum, seed 1's at it) (benchmarks/results/exact_anneal_race_ab.md).
+ANNEAL_SEEDS = (0, 1)
 #: Seconds the annealing waits at least for its kernel (:mod:`.kernels`): loading
 #: it from numba's disk cache, with numba's import, takes ~0.25 s on our 2-core box.
 KERNEL_LOAD_S = 1.0
@@ -601,8 +606,8 @@ class _Search(Clock):
             wait = None if share is None else min(max(share, KERNEL_LOAD_S), self.deadline - time.perf_counter())
             if kernels.ready("anneal", wait):
                 deadline = None if share is None else min(self.deadline, time.perf_counter() + share)
-                cand = anneal_schedule(data, self.assign, deadline=deadline,
-                                       rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE)
+                cand = anneal_race(data, self.assign, seeds=ANNEAL_SEEDS, deadline=deadline,
+                                   rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE)
                 self.try_incumbent(cand, self.allowed0, {})
                 self.details["after_anneal"] = self.z
             else:
