@@ -100,6 +100,28 @@ def test_anneal_race_is_the_first_best_of_its_chains(seed: int, opt: int) -> Non
     assert assignment_feasible(data, out) and is_feasible(inst, data.arrivals(out))
 
 
+def test_anneal_stops_between_rounds_when_asked() -> None:
+    """``stop`` is polled before each round: true at once runs none (the start comes back); in a
+    race, a chain that fails ends its sibling too, and the failure reaches the caller."""
+    inst = random_instance(np.random.default_rng(3), T=4, J=6, L=2, tight=0.5)
+    data = gap_data(inst)
+    start = np.full(data.n, -1, dtype=np.int64)
+    assert np.array_equal(anneal_schedule(data, start, rounds=10**6, moves=200, stop=lambda: True), start)
+    assert np.array_equal(anneal_race(data, start, seeds=(0, 1), rounds=10**6, moves=200, stop=lambda: True), start)
+    calls = []
+
+    def failing() -> bool:   # raises once, in whichever chain asks fifth: the other must be told
+        calls.append(1)
+        if len(calls) == 5:
+            raise RuntimeError("chain failed")
+        return False
+
+    began = time.perf_counter()
+    with pytest.raises(RuntimeError, match="chain failed"):
+        anneal_race(data, start, seeds=(0, 1), rounds=10**6, moves=200, stop=failing)
+    assert time.perf_counter() - began < 30.0   # 10**6 rounds would take minutes
+
+
 def test_anneal_race_needs_a_seed() -> None:
     data = gap_data(random_instance(np.random.default_rng(0), T=2, J=2, L=2))
     with pytest.raises(SolveError, match="at least one seed"):

@@ -71,7 +71,7 @@ from l3gs_opt.errors import SolveError
 from l3gs_opt.models.backends.highs_race import mip_seeds
 from l3gs_opt.problem.instance import Instance
 from l3gs_opt.problem.solution import GAP_TOL, Solution, Status, finish_solution, relative_gap, utility_scale
-from l3gs_opt.stop import expired
+from l3gs_opt.stop import expired, requested
 
 from . import kernels
 from .clock import Clock
@@ -607,7 +607,8 @@ class _Search(Clock):
             if kernels.ready("anneal", wait):
                 deadline = None if share is None else min(self.deadline, time.perf_counter() + share)
                 cand = anneal_race(data, self.assign, seeds=ANNEAL_SEEDS, deadline=deadline,
-                                   rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE)
+                                   rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE,
+                                   stop=requested)
                 self.try_incumbent(cand, self.allowed0, {})
                 self.details["after_anneal"] = self.z
             else:
