@@ -3,8 +3,8 @@ two raced on the two cores (``search.ANNEAL_SEEDS``), A/B, one JSON line per run
 ``--out``; ``--report`` prints the per-arm table. Also ``--chains``: each seed's chain alone from
 the start heuristics' schedule, under the root's annealing share (its value against the optimum).
 
-``--arm race`` is the code as it is (seeds 0 and 1); ``--arm single`` patches ANNEAL_SEEDS to (0,),
-the code before. Runs are meant to be made one after another on an otherwise idle machine.
+``--arm race`` is the code as it is (one seed per usable core: 0 and 1 on 2 cores); ``--arm single``
+patches ANNEAL_SEEDS to (0,), the code before. Runs are meant to be made one after another on an otherwise idle machine.
 
     .venv/bin/python benchmarks/probe_anneal_race.py --arm single --seeds 0-9 --reps 2 --out runs.jsonl
     .venv/bin/python benchmarks/probe_anneal_race.py --out runs.jsonl --report
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> None:
                 d = sol.details
                 z_at = next((p[0] for p in d["trace"] if p[1] >= sol.objective - 1e-9), None)
                 rec = {"J": args.J, "seed": seed, "rep": rep, "arm": args.arm,
-                       "seeds_annealed": list(search.ANNEAL_SEEDS),
+                       "seeds_annealed": list(search.ANNEAL_SEEDS or search.mip_seeds()),
                        "status": sol.status.value, "objective": sol.objective, "bound": sol.bound,
                        "runtime_s": sol.runtime_s, "schedule_found_s": z_at, "after_anneal": d.get("after_anneal"),
                        "nodes": d.get("nodes"), "loadavg_before": load, "loadavg_after": os.getloadavg(),

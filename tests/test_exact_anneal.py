@@ -15,10 +15,10 @@ from hypothesis import strategies as st
 
 from core_helpers import PER_SLOT_OPTIONS, random_instance
 from l3gs_opt import solve
+from l3gs_opt.errors import SolveError
 from l3gs_opt.problem.evaluate import evaluate_objective, is_feasible
 from l3gs_opt.solvers.brute_force import solve_brute_force
 from l3gs_opt.solvers.exact import _anneal_kernels as kernels
-from l3gs_opt.errors import SolveError
 from l3gs_opt.solvers.exact.anneal import anneal_race, anneal_schedule, first_fit, slot_order
 from l3gs_opt.solvers.exact.lagrange import assignment_feasible, assignment_value, gap_data
 

@@ -17,8 +17,8 @@ therefore the decoding of some order, and a search over orders loses nothing.
 positions or move one, mostly nearby; :mod:`._anneal_kernels`), each round from the best order so
 far, until its deadline; :func:`anneal_race` runs chains of other seeds beside it, one per core.
 Moves re-decode only from the checkpoint before the first changed position until the decoder's
-state meets the old one again. It is a heuristic: its schedule is
-checked in exact bytes and valued in float64 from the data, and nothing here claims a bound.
+state meets the old one again. It is a heuristic: its schedule is checked in exact bytes and valued
+in float64 from the data, and nothing here claims a bound.
 """
 
 from __future__ import annotations
@@ -203,10 +203,11 @@ def anneal_schedule(data: GapData, start: np.ndarray | None, *, deadline: float 
     return best
 
 
-def anneal_race(data: GapData, start: np.ndarray | None, *, seeds: Sequence[int], **kw) -> np.ndarray:
+def anneal_race(data: GapData, start: np.ndarray | None, *, seeds: Sequence[int],
+                stop: Callable[[], bool] | None = None, **kw) -> np.ndarray:
     """The best of :func:`anneal_schedule` chains, one per seed, run at once in threads (the kernel
-    releases the GIL, so each gets a core); ``kw`` goes to every chain (the same deadline and
-    ``stop``). An exception in the caller's wait (a second Ctrl-C) or in a chain ends the others
+    releases the GIL, so each gets a core); ``stop`` and ``kw`` go to every chain (the same
+    deadline). An exception in the caller's wait (a second Ctrl-C) or in a chain ends the others
     after their round, then propagates.
 
     Ties go to the earlier seed, so without a deadline the answer does not depend on which chain
@@ -218,15 +219,14 @@ def anneal_race(data: GapData, start: np.ndarray | None, *, seeds: Sequence[int]
     if not seeds:
         raise SolveError("anneal_race: give at least one seed")
     if len(seeds) == 1:
-        return anneal_schedule(data, start, seed=seeds[0], **kw)
+        return anneal_schedule(data, start, seed=seeds[0], stop=stop, **kw)
     abort = threading.Event()
-    caller_stop = kw.pop("stop", None)
 
-    def stop() -> bool:
-        return abort.is_set() or (caller_stop is not None and caller_stop())
+    def stopped() -> bool:
+        return abort.is_set() or (stop is not None and stop())
 
     with ThreadPoolExecutor(max_workers=len(seeds), thread_name_prefix="l3gs-anneal") as pool:
-        futures = [pool.submit(anneal_schedule, data, start, seed=s, stop=stop, **kw) for s in seeds]
+        futures = [pool.submit(anneal_schedule, data, start, seed=s, stop=stopped, **kw) for s in seeds]
         try:
             done, _ = wait(futures, return_when=FIRST_EXCEPTION)
             failed = [f.exception() for f in done if f.exception() is not None]

@@ -165,11 +165,12 @@ ANNEAL_SHARE, ANNEAL_ROUNDS = 0.07, 12
 #: The annealing stops early when this many rounds in a row find nothing better (most J=20 seeds
 #: reach their best in the first two rounds of about 0.35 s, from the fourteen runs of 4.2 s each).
 ANNEAL_PATIENCE = 4
-#: Seeds of the annealing chains, raced one per core (:func:`.anneal.anneal_race`): the second core
-#: is idle until the root LP. J=20 seeds 0-9, two runs each: 8 of 10 proven in 60 s in both, median
-#: 16.9 / 17.4 s; with seed 0 alone 7 of 10, median 31.1 / 31.4 s (s0 never: its chain ends 1.1
-#: below the optimum, seed 1's at it) (benchmarks/results/exact_anneal_race_ab.md).
-ANNEAL_SEEDS = (0, 1)
+#: Seeds of the annealing chains, raced one per core (:func:`.anneal.anneal_race`); None: one per
+#: core this process may use, as for HiGHS's races (``mip_seeds``: (0, 1) on our 2-core box, whose
+#: second core is idle until the root LP). J=20 seeds 0-9, two runs each: 8 of 10 proven in 60 s in
+#: both, median 16.9 / 17.4 s; with seed 0 alone 7 of 10, median 31.1 / 31.4 s (s0 never: its chain
+#: ends 1.1 below the optimum, seed 1's at it) (benchmarks/results/exact_anneal_race_ab.md).
+ANNEAL_SEEDS: tuple[int, ...] | None = None
 #: Seconds the annealing waits at least for its kernel (:mod:`.kernels`): loading
 #: it from numba's disk cache, with numba's import, takes ~0.25 s on our 2-core box.
 KERNEL_LOAD_S = 1.0
@@ -606,7 +607,7 @@ class _Search(Clock):
             wait = None if share is None else min(max(share, KERNEL_LOAD_S), self.deadline - time.perf_counter())
             if kernels.ready("anneal", wait):
                 deadline = None if share is None else min(self.deadline, time.perf_counter() + share)
-                cand = anneal_race(data, self.assign, seeds=ANNEAL_SEEDS, deadline=deadline,
+                cand = anneal_race(data, self.assign, seeds=ANNEAL_SEEDS or mip_seeds(), deadline=deadline,
                                    rounds=ANNEAL_ROUNDS if deadline is None else None, patience=ANNEAL_PATIENCE,
                                    stop=requested)
                 self.try_incumbent(cand, self.allowed0, {})
